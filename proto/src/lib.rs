@@ -1,0 +1,36 @@
+//! soundmap's gRPC contract and the validated domain types both sides share.
+//!
+//! - [`wire`]: the generated prost/tonic types of package `soundmap.v1`
+//!   (`proto/soundmap/v1/*.proto`). Clients and servers of other languages use
+//!   the `.proto` files directly.
+//! - Domain types ([`Hello`], [`Observation`], [`RepositionCommand`], …) carry
+//!   nalgebra types and are valid by construction: converting from the wire
+//!   checks every field and names the first bad one in a [`ValidationError`].
+//! - [`Stamp`]: the fleet timebase (Unix time in nanoseconds).
+//!
+//! Frames, units and time conventions are those of the `.proto` files: `map`,
+//! `base`, `array` frames; SI units; transforms named `a_from_b`.
+
+pub mod error;
+pub mod geometry;
+pub mod messages;
+pub mod robot_id;
+pub mod stamp;
+
+pub use error::{Problem, ValidationError};
+pub use geometry::{Limits, pose_from_wire, pose_to_wire, vec3_to_wire};
+pub use messages::{
+    ArrayInfo, CommandAck, CommandProgress, CommandState, Hello, Observation, RepositionCommand,
+    RepositionReason, RobotInput, TrackedDoa,
+};
+pub use robot_id::RobotId;
+pub use stamp::Stamp;
+
+/// The generated types of package `soundmap.v1`.
+#[allow(missing_docs, clippy::all, missing_debug_implementations)]
+pub mod wire {
+    include!(concat!(env!("OUT_DIR"), "/soundmap.v1.rs"));
+}
+
+/// Version of the contract this crate implements (`Hello.protocol_version`).
+pub const PROTOCOL_VERSION: u32 = 1;

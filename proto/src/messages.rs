@@ -1,0 +1,548 @@
+//! Domain forms of the robot-link messages, with checked conversions from the wire.
+
+use nalgebra::{Isometry3, Matrix6, Point3, Unit, Vector3};
+
+use crate::error::{Problem, ValidationError};
+use crate::geometry::{
+    Limits, direction_from_wire, finite, point_from_wire, pose_covariance_from_wire, pose_covariance_to_wire,
+    pose_from_wire, pose_to_wire, vec3_to_wire,
+};
+use crate::robot_id::RobotId;
+use crate::stamp::Stamp;
+use crate::{PROTOCOL_VERSION, wire};
+
+/// Most DoAs accepted in one observation.
+pub const MAX_DOAS_PER_OBSERVATION: usize = 64;
+/// Longest accepted free-text field, in characters.
+pub const MAX_TEXT_LEN: usize = 256;
+
+/// A robot's microphone array as the coordinator needs it.
+#[derive(Clone, Debug, PartialEq)]
+pub struct ArrayInfo {
+    /// Pose of the array frame in the base frame.
+    pub base_from_array: Isometry3<f64>,
+    /// Number of microphones (≥ 2).
+    pub microphone_count: u32,
+    /// Preset the array came from, if any.
+    pub preset: Option<String>,
+    /// Microphone positions in the array frame, metres (may be empty).
+    pub microphone_positions: Vec<Point3<f64>>,
+}
+
+/// First message of a robot's stream.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Hello {
+    /// The robot's identity.
+    pub robot_id: RobotId,
+    /// Its microphone array.
+    pub array: ArrayInfo,
+    /// Free text describing the agent software.
+    pub software_version: String,
+}
+
+/// One tracked direction of arrival.
+#[derive(Clone, Debug, PartialEq)]
+pub struct TrackedDoa {
+    /// Robot-local track id.
+    pub track_id: u64,
+    /// Unit vector toward the source, array frame.
+    pub direction_in_array: Unit<Vector3<f64>>,
+    /// Activity in [0, 1].
+    pub activity: f64,
+    /// 1-σ angular uncertainty per tangent axis (rad), when the robot knows it.
+    pub angular_sigma_rad: Option<f64>,
+}
+
+/// A robot's DoAs at one instant with its pose at that instant.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Observation {
+    /// Per-stream sequence number.
+    pub sequence: u64,
+    /// Acoustic time of the DoAs.
+    pub stamp: Stamp,
+    /// Pose of the base in the map at `stamp`.
+    pub map_from_base: Isometry3<f64>,
+    /// Covariance of `map_from_base` over (x, y, z, rx, ry, rz), m² and rad².
+    pub pose_covariance: Option<Matrix6<f64>>,
+    /// Tracked sources heard at `stamp`.
+    pub doas: Vec<TrackedDoa>,
+}
+
+/// State of a reposition command as the robot reports it.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum CommandState {
+    /// Driving toward the goal.
+    Executing,
+    /// At the goal.
+    Succeeded,
+    /// Could not reach the goal.
+    Failed,
+    /// Replaced or cancelled.
+    Canceled,
+}
+
+/// A robot's answer to a command.
+#[derive(Clone, Debug, PartialEq)]
+pub struct CommandAck {
+    /// The command answered.
+    pub command_id: u64,
+    /// Whether the robot will execute it.
+    pub accepted: bool,
+    /// Why not, when refused.
+    pub reason: String,
+}
+
+/// Progress of a command.
+#[derive(Clone, Debug, PartialEq)]
+pub struct CommandProgress {
+    /// The command reported on.
+    pub command_id: u64,
+    /// Its state.
+    pub state: CommandState,
+    /// Remaining path length (m), when known.
+    pub distance_remaining_m: Option<f64>,
+    /// Free text.
+    pub detail: String,
+}
+
+/// Why the coordinator asks a robot to move.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum RepositionReason {
+    /// θ left the band.
+    ThetaOutOfBand,
+    /// GDOP above threshold.
+    GdopHigh,
+    /// Predicted improvement worth the motion.
+    Improvement,
+    /// The formation follows a moving source.
+    FollowSource,
+}
+
+/// A goal for a robot's base.
+#[derive(Clone, Debug, PartialEq)]
+pub struct RepositionCommand {
+    /// Coordinator-wide command id.
+    pub command_id: u64,
+    /// Goal pose of the base in the map frame.
+    pub goal_map_from_base: Isometry3<f64>,
+    /// Point to face on arrival (map frame).
+    pub look_at_in_map: Point3<f64>,
+    /// Why.
+    pub reason: RepositionReason,
+    /// Free text for operators.
+    pub detail: String,
+    /// The command is void after this time.
+    pub deadline: Stamp,
+    /// When it was issued.
+    pub issued: Stamp,
+}
+
+/// Any message a robot sends, validated.
+///
+/// Observations are nearly all of the traffic and the largest variant, so they
+/// stay unboxed: boxing would add an allocation to the common case.
+#[allow(clippy::large_enum_variant)]
+#[derive(Clone, Debug, PartialEq)]
+pub enum RobotInput {
+    /// Stream opening.
+    Hello(Hello),
+    /// DoAs with pose.
+    Observation(Observation),
+    /// Sign of life, with the robot's clock.
+    Heartbeat(Stamp),
+    /// Answer to a command.
+    CommandAck(CommandAck),
+    /// Progress of a command.
+    CommandProgress(CommandProgress),
+}
+
+fn text(s: &str, field: &str) -> Result<String, ValidationError> {
+    let len = s.chars().count();
+    if len > MAX_TEXT_LEN {
+        return Err(ValidationError::new(field, Problem::TooLong { len, max: MAX_TEXT_LEN }));
+    }
+    Ok(s.to_owned())
+}
+
+impl ArrayInfo {
+    /// Validates a wire array description; errors name fields under `field`.
+    pub fn from_wire(
+        a: &Option<wire::ArrayDescription>,
+        field: &str,
+        limits: &Limits,
+    ) -> Result<Self, ValidationError> {
+        let a = a.as_ref().ok_or_else(|| ValidationError::new(field, Problem::Missing))?;
+        let base_from_array =
+            pose_from_wire(&a.base_from_array, &format!("{field}.base_from_array"), limits)?;
+        if a.microphone_count < 2 {
+            return Err(ValidationError::new(
+                format!("{field}.microphone_count"),
+                Problem::OutOfRange { value: a.microphone_count as f64, range: "[2, ∞)" },
+            ));
+        }
+        let microphone_positions = a
+            .microphone_positions_m
+            .iter()
+            .enumerate()
+            .map(|(i, p)| point_from_wire(&Some(*p), &format!("{field}.microphone_positions_m[{i}]")))
+            .collect::<Result<Vec<_>, _>>()?;
+        if !microphone_positions.is_empty() && microphone_positions.len() != a.microphone_count as usize {
+            return Err(ValidationError::new(
+                format!("{field}.microphone_positions_m"),
+                Problem::WrongLength {
+                    expected: a.microphone_count as usize,
+                    got: microphone_positions.len(),
+                },
+            ));
+        }
+        Ok(ArrayInfo {
+            base_from_array,
+            microphone_count: a.microphone_count,
+            preset: (!a.preset.is_empty())
+                .then(|| text(&a.preset, &format!("{field}.preset")))
+                .transpose()?,
+            microphone_positions,
+        })
+    }
+
+    /// Wire form.
+    pub fn to_wire(&self) -> wire::ArrayDescription {
+        wire::ArrayDescription {
+            base_from_array: Some(pose_to_wire(&self.base_from_array)),
+            microphone_count: self.microphone_count,
+            preset: self.preset.clone().unwrap_or_default(),
+            microphone_positions_m: self
+                .microphone_positions
+                .iter()
+                .map(|p| vec3_to_wire(&p.coords))
+                .collect(),
+        }
+    }
+}
+
+impl Hello {
+    /// Validates a wire hello.
+    pub fn from_wire(h: &wire::Hello, limits: &Limits) -> Result<Self, ValidationError> {
+        let robot_id = RobotId::parse(&h.robot_id, "hello.robot_id")?;
+        let version = if h.protocol_version == 0 { 1 } else { h.protocol_version };
+        if version > PROTOCOL_VERSION {
+            return Err(ValidationError::new(
+                "hello.protocol_version",
+                Problem::Invalid(format!(
+                    "unsupported protocol version {version} (this side speaks {PROTOCOL_VERSION})"
+                )),
+            ));
+        }
+        Ok(Hello {
+            robot_id,
+            array: ArrayInfo::from_wire(&h.array, "hello.array", limits)?,
+            software_version: text(&h.software_version, "hello.software_version")?,
+        })
+    }
+
+    /// Wire form.
+    pub fn to_wire(&self) -> wire::Hello {
+        wire::Hello {
+            robot_id: self.robot_id.to_string(),
+            array: Some(self.array.to_wire()),
+            software_version: self.software_version.clone(),
+            protocol_version: PROTOCOL_VERSION,
+        }
+    }
+}
+
+impl TrackedDoa {
+    fn from_wire(d: &wire::TrackedDoa, field: &str, limits: &Limits) -> Result<Self, ValidationError> {
+        let direction_in_array =
+            direction_from_wire(&d.direction_in_array, &format!("{field}.direction_in_array"), limits)?;
+        let activity = finite(d.activity, &format!("{field}.activity"))?;
+        if !(0.0..=1.0).contains(&activity) {
+            return Err(ValidationError::new(
+                format!("{field}.activity"),
+                Problem::OutOfRange { value: activity, range: "[0, 1]" },
+            ));
+        }
+        let sigma = finite(d.angular_sigma_rad, &format!("{field}.angular_sigma_rad"))?;
+        if !(0.0..=std::f64::consts::PI).contains(&sigma) {
+            return Err(ValidationError::new(
+                format!("{field}.angular_sigma_rad"),
+                Problem::OutOfRange { value: sigma, range: "[0, π] (0 = unknown)" },
+            ));
+        }
+        Ok(TrackedDoa {
+            track_id: d.track_id,
+            direction_in_array,
+            activity,
+            angular_sigma_rad: (sigma > 0.0).then_some(sigma),
+        })
+    }
+
+    /// Wire form.
+    pub fn to_wire(&self) -> wire::TrackedDoa {
+        wire::TrackedDoa {
+            track_id: self.track_id,
+            direction_in_array: Some(vec3_to_wire(&self.direction_in_array)),
+            activity: self.activity,
+            angular_sigma_rad: self.angular_sigma_rad.unwrap_or(0.0),
+        }
+    }
+}
+
+impl Observation {
+    /// Validates a wire observation (stateless checks; ordering is the receiver's job).
+    pub fn from_wire(o: &wire::Observation, limits: &Limits) -> Result<Self, ValidationError> {
+        let stamp = limits.stamp(o.stamp_ns, "observation.stamp_ns")?;
+        let map_from_base = pose_from_wire(&o.map_from_base, "observation.map_from_base", limits)?;
+        let pose_covariance =
+            pose_covariance_from_wire(&o.map_from_base_covariance, "observation.map_from_base_covariance")?;
+        if o.doas.len() > MAX_DOAS_PER_OBSERVATION {
+            return Err(ValidationError::new(
+                "observation.doas",
+                Problem::WrongLength { expected: MAX_DOAS_PER_OBSERVATION, got: o.doas.len() },
+            ));
+        }
+        let doas = o
+            .doas
+            .iter()
+            .enumerate()
+            .map(|(i, d)| TrackedDoa::from_wire(d, &format!("observation.doas[{i}]"), limits))
+            .collect::<Result<Vec<_>, _>>()?;
+        Ok(Observation { sequence: o.sequence, stamp, map_from_base, pose_covariance, doas })
+    }
+
+    /// Wire form.
+    pub fn to_wire(&self) -> wire::Observation {
+        wire::Observation {
+            sequence: self.sequence,
+            stamp_ns: self.stamp.as_ns(),
+            map_from_base: Some(pose_to_wire(&self.map_from_base)),
+            map_from_base_covariance: self.pose_covariance.as_ref().map(pose_covariance_to_wire),
+            doas: self.doas.iter().map(TrackedDoa::to_wire).collect(),
+        }
+    }
+}
+
+impl CommandState {
+    /// From the wire enum value.
+    pub fn from_wire(v: i32, field: &str) -> Result<Self, ValidationError> {
+        match wire::CommandState::try_from(v) {
+            Ok(wire::CommandState::Executing) => Ok(CommandState::Executing),
+            Ok(wire::CommandState::Succeeded) => Ok(CommandState::Succeeded),
+            Ok(wire::CommandState::Failed) => Ok(CommandState::Failed),
+            Ok(wire::CommandState::Canceled) => Ok(CommandState::Canceled),
+            Ok(wire::CommandState::Unspecified) => Err(ValidationError::new(field, Problem::Missing)),
+            Err(_) => Err(ValidationError::new(field, Problem::UnknownEnum(v))),
+        }
+    }
+
+    /// Wire enum.
+    pub fn to_wire(self) -> wire::CommandState {
+        match self {
+            CommandState::Executing => wire::CommandState::Executing,
+            CommandState::Succeeded => wire::CommandState::Succeeded,
+            CommandState::Failed => wire::CommandState::Failed,
+            CommandState::Canceled => wire::CommandState::Canceled,
+        }
+    }
+
+    /// True once the command will make no more progress.
+    pub fn is_final(self) -> bool {
+        !matches!(self, CommandState::Executing)
+    }
+}
+
+impl RepositionReason {
+    /// Wire enum.
+    pub fn to_wire(self) -> wire::RepositionReason {
+        match self {
+            RepositionReason::ThetaOutOfBand => wire::RepositionReason::ThetaOutOfBand,
+            RepositionReason::GdopHigh => wire::RepositionReason::GdopHigh,
+            RepositionReason::Improvement => wire::RepositionReason::Improvement,
+            RepositionReason::FollowSource => wire::RepositionReason::FollowSource,
+        }
+    }
+
+    /// From the wire enum value.
+    pub fn from_wire(v: i32, field: &str) -> Result<Self, ValidationError> {
+        match wire::RepositionReason::try_from(v) {
+            Ok(wire::RepositionReason::ThetaOutOfBand) => Ok(RepositionReason::ThetaOutOfBand),
+            Ok(wire::RepositionReason::GdopHigh) => Ok(RepositionReason::GdopHigh),
+            Ok(wire::RepositionReason::Improvement) => Ok(RepositionReason::Improvement),
+            Ok(wire::RepositionReason::FollowSource) => Ok(RepositionReason::FollowSource),
+            Ok(wire::RepositionReason::Unspecified) => Err(ValidationError::new(field, Problem::Missing)),
+            Err(_) => Err(ValidationError::new(field, Problem::UnknownEnum(v))),
+        }
+    }
+}
+
+impl RepositionCommand {
+    /// Wire form.
+    pub fn to_wire(&self) -> wire::RepositionCommand {
+        wire::RepositionCommand {
+            command_id: self.command_id,
+            goal_map_from_base: Some(pose_to_wire(&self.goal_map_from_base)),
+            look_at_in_map_m: Some(vec3_to_wire(&self.look_at_in_map.coords)),
+            reason: self.reason.to_wire() as i32,
+            detail: self.detail.clone(),
+            deadline_ns: self.deadline.as_ns(),
+            issued_ns: self.issued.as_ns(),
+        }
+    }
+
+    /// Validates a wire command (agent side). Stamps are not checked against a clock.
+    pub fn from_wire(c: &wire::RepositionCommand, limits: &Limits) -> Result<Self, ValidationError> {
+        Ok(RepositionCommand {
+            command_id: c.command_id,
+            goal_map_from_base: pose_from_wire(
+                &c.goal_map_from_base,
+                "reposition.goal_map_from_base",
+                limits,
+            )?,
+            look_at_in_map: point_from_wire(&c.look_at_in_map_m, "reposition.look_at_in_map_m")?,
+            reason: RepositionReason::from_wire(c.reason, "reposition.reason")?,
+            detail: c.detail.clone(),
+            deadline: Stamp::from_ns(c.deadline_ns),
+            issued: Stamp::from_ns(c.issued_ns),
+        })
+    }
+}
+
+impl RobotInput {
+    /// Validates any robot message. An empty envelope is an error naming `msg`.
+    pub fn from_wire(m: &wire::RobotMessage, limits: &Limits) -> Result<Self, ValidationError> {
+        use wire::robot_message::Msg;
+        match &m.msg {
+            None => Err(ValidationError::new("msg", Problem::Missing)),
+            Some(Msg::Hello(h)) => Hello::from_wire(h, limits).map(RobotInput::Hello),
+            Some(Msg::Observation(o)) => Observation::from_wire(o, limits).map(RobotInput::Observation),
+            Some(Msg::Heartbeat(h)) => {
+                limits.stamp(h.stamp_ns, "heartbeat.stamp_ns").map(RobotInput::Heartbeat)
+            }
+            Some(Msg::CommandAck(a)) => Ok(RobotInput::CommandAck(CommandAck {
+                command_id: a.command_id,
+                accepted: a.accepted,
+                reason: text(&a.reason, "command_ack.reason")?,
+            })),
+            Some(Msg::CommandProgress(p)) => {
+                let d = finite(p.distance_remaining_m, "command_progress.distance_remaining_m")?;
+                Ok(RobotInput::CommandProgress(CommandProgress {
+                    command_id: p.command_id,
+                    state: CommandState::from_wire(p.state, "command_progress.state")?,
+                    distance_remaining_m: (d >= 0.0).then_some(d),
+                    detail: text(&p.detail, "command_progress.detail")?,
+                }))
+            }
+        }
+    }
+
+    /// Wire form.
+    pub fn to_wire(&self) -> wire::RobotMessage {
+        use wire::robot_message::Msg;
+        let msg = match self {
+            RobotInput::Hello(h) => Msg::Hello(h.to_wire()),
+            RobotInput::Observation(o) => Msg::Observation(o.to_wire()),
+            RobotInput::Heartbeat(s) => Msg::Heartbeat(wire::Heartbeat { stamp_ns: s.as_ns() }),
+            RobotInput::CommandAck(a) => Msg::CommandAck(wire::CommandAck {
+                command_id: a.command_id,
+                accepted: a.accepted,
+                reason: a.reason.clone(),
+            }),
+            RobotInput::CommandProgress(p) => Msg::CommandProgress(wire::CommandProgress {
+                command_id: p.command_id,
+                state: p.state.to_wire() as i32,
+                distance_remaining_m: p.distance_remaining_m.unwrap_or(-1.0),
+                detail: p.detail.clone(),
+            }),
+        };
+        wire::RobotMessage { msg: Some(msg) }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use nalgebra::Vector3;
+
+    fn limits() -> Limits {
+        Limits::at(Stamp::from_ns(2_000_000_000_000_000_000))
+    }
+
+    fn observation() -> Observation {
+        Observation {
+            sequence: 7,
+            stamp: Stamp::from_ns(1_999_999_999_000_000_000),
+            map_from_base: Isometry3::new(Vector3::new(1.0, 2.0, 0.0), Vector3::new(0.0, 0.0, 0.7)),
+            pose_covariance: Some(Matrix6::identity() * 1e-4),
+            doas: vec![TrackedDoa {
+                track_id: 3,
+                direction_in_array: Unit::new_normalize(Vector3::new(1.0, 1.0, 0.3)),
+                activity: 0.9,
+                angular_sigma_rad: Some(0.05),
+            }],
+        }
+    }
+
+    #[test]
+    fn observation_round_trip() {
+        let o = observation();
+        let back = Observation::from_wire(&o.to_wire(), &limits()).unwrap();
+        assert_eq!(back.sequence, 7);
+        assert_eq!(back.stamp, o.stamp);
+        assert!(
+            (back.doas[0].direction_in_array.into_inner() - o.doas[0].direction_in_array.into_inner()).norm()
+                < 1e-12
+        );
+        assert_eq!(back.doas[0].angular_sigma_rad, Some(0.05));
+    }
+
+    #[test]
+    fn bad_observation_fields_are_named() {
+        let l = limits();
+        let mut w = observation().to_wire();
+        w.doas[0].activity = 1.5;
+        assert_eq!(Observation::from_wire(&w, &l).unwrap_err().field, "observation.doas[0].activity");
+        let mut w = observation().to_wire();
+        w.map_from_base = None;
+        assert_eq!(Observation::from_wire(&w, &l).unwrap_err().field, "observation.map_from_base");
+        let mut w = observation().to_wire();
+        w.doas[0].angular_sigma_rad = -0.1;
+        assert_eq!(
+            Observation::from_wire(&w, &l).unwrap_err().field,
+            "observation.doas[0].angular_sigma_rad"
+        );
+        let mut w = observation().to_wire();
+        w.stamp_ns = i64::MAX;
+        assert_eq!(Observation::from_wire(&w, &l).unwrap_err().field, "observation.stamp_ns");
+    }
+
+    #[test]
+    fn hello_checks() {
+        let l = limits();
+        let h = Hello {
+            robot_id: RobotId::parse("r1", "id").unwrap(),
+            array: ArrayInfo {
+                base_from_array: Isometry3::translation(0.0, 0.0, 0.48),
+                microphone_count: 16,
+                preset: Some("16soundsusb-pioneer".into()),
+                microphone_positions: vec![],
+            },
+            software_version: "test".into(),
+        };
+        assert_eq!(Hello::from_wire(&h.to_wire(), &l).unwrap(), h);
+        let mut w = h.to_wire();
+        w.array.as_mut().unwrap().microphone_count = 1;
+        assert_eq!(Hello::from_wire(&w, &l).unwrap_err().field, "hello.array.microphone_count");
+        let mut w = h.to_wire();
+        w.array = None;
+        assert_eq!(Hello::from_wire(&w, &l).unwrap_err().field, "hello.array");
+        let mut w = h.to_wire();
+        w.protocol_version = 9;
+        assert_eq!(Hello::from_wire(&w, &l).unwrap_err().field, "hello.protocol_version");
+    }
+
+    #[test]
+    fn empty_envelope() {
+        let e = RobotInput::from_wire(&wire::RobotMessage { msg: None }, &limits()).unwrap_err();
+        assert_eq!(e.field, "msg");
+    }
+}

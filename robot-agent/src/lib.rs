@@ -1,0 +1,1 @@
+//! soundmap robot agent library.

@@ -1,0 +1,2 @@
+//! soundmap-agent binary.
+fn main() {}

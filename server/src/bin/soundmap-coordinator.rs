@@ -1,0 +1,2 @@
+//! soundmap-coordinator binary.
+fn main() {}

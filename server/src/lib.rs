@@ -1,0 +1,1 @@
+//! soundmap coordinator library.

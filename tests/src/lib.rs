@@ -1,0 +1,1 @@
+//! soundmap simulation library.

@@ -1,0 +1,2 @@
+//! soundmap-sim binary.
+fn main() {}
