@@ -1,1 +1,32 @@
-//! soundmap robot agent library.
+//! soundmap robot agent: hears directions of arrival on board and streams
+//! them, with the robot's SLAM pose, to the coordinator.
+//!
+//! Pure core (no sockets, files or clocks):
+//! - [`array`]: microphone array geometry, presets, TOML files.
+//! - [`stft`]: framing, windowing and real FFTs of multichannel audio.
+//! - [`srp`]: SRP-PHAT on a hierarchical sphere grid with sub-grid refinement.
+//! - [`doa_tracker`]: Kalman tracking of DoAs on the sphere (ids, activity).
+//! - [`pipeline`]: STFT → SRP-PHAT → tracker, one hop at a time, allocation-free.
+//!
+//! Shell:
+//! - [`audio`]: WAV, raw PCM, standard input and live capture, stamped blocks.
+//! - [`pose`]: TUM trajectories and live pose feeds, interpolation at a stamp.
+//! - [`odas`]: DoAs from a running ODAS (SST JSON) instead of our own localization.
+//! - [`link`]: the gRPC stream to the coordinator (reconnection, bounded buffer).
+//! - [`navigator`]: executes reposition commands.
+//! - [`config`]: `agent.toml`.
+
+pub mod array;
+pub mod audio;
+pub mod config;
+pub mod doa_tracker;
+pub mod error;
+pub mod link;
+pub mod navigator;
+pub mod odas;
+pub mod pipeline;
+pub mod pose;
+pub mod srp;
+pub mod stft;
+
+pub use error::AgentError;

@@ -1,1 +1,11 @@
-//! soundmap simulation library.
+//! soundmap simulation and replay: the whole system exercised and measured
+//! the way the published trials measured it.
+//!
+//! - [`acoustics`]: shoebox rooms, image-source impulse responses, source signals,
+//!   sensor and diffuse noise, moving sources and arrays.
+//! - [`kinematics`]: differential-drive robots, waypoint trajectories, a navigator.
+//! - [`slam_noise`]: the pose error a SLAM system adds (noise and slow drift).
+
+pub mod acoustics;
+pub mod kinematics;
+pub mod slam_noise;
