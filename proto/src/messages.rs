@@ -138,10 +138,6 @@ pub struct RepositionCommand {
 }
 
 /// Any message a robot sends, validated.
-///
-/// Observations are nearly all of the traffic and the largest variant, so they
-/// stay unboxed: boxing would add an allocation to the common case.
-#[allow(clippy::large_enum_variant)]
 #[derive(Clone, Debug, PartialEq)]
 pub enum RobotInput {
     /// Stream opening.

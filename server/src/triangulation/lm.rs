@@ -1,0 +1,214 @@
+//! Levenberg–Marquardt refinement on angular residuals with a robust loss (theory §1.5, §1.7).
+
+use nalgebra::{Matrix2x3, Matrix3, Point3, Vector2, Vector3};
+use serde::Deserialize;
+
+use crate::ray::{MIN_RANGE_M, Ray, tangent_basis};
+
+/// Robust loss applied to each ray's Mahalanobis residual ρ (theory §1.7).
+#[derive(Clone, Copy, Debug, PartialEq, Deserialize)]
+#[serde(tag = "kind", rename_all = "snake_case", deny_unknown_fields)]
+pub enum RobustLoss {
+    /// Plain least squares.
+    None,
+    /// Huber: quadratic up to ρ = δ, linear beyond.
+    Huber {
+        /// Threshold δ (σ units).
+        delta: f64,
+    },
+    /// Cauchy: redescending, suited to coherent wrong DoAs such as mirror sources.
+    Cauchy {
+        /// Scale c (σ units).
+        c: f64,
+    },
+}
+
+impl Default for RobustLoss {
+    fn default() -> Self {
+        RobustLoss::Cauchy { c: 2.4 }
+    }
+}
+
+impl RobustLoss {
+    /// Loss of a squared residual s = ρ².
+    fn cost(self, s: f64) -> f64 {
+        match self {
+            RobustLoss::None => s,
+            RobustLoss::Huber { delta } => {
+                let r = s.sqrt();
+                if r <= delta { s } else { 2.0 * delta * r - delta * delta }
+            }
+            RobustLoss::Cauchy { c } => c * c * (s / (c * c)).ln_1p(),
+        }
+    }
+
+    /// IRLS weight of a squared residual s = ρ² (derivative of the loss w.r.t. s).
+    fn weight(self, s: f64) -> f64 {
+        match self {
+            RobustLoss::None => 1.0,
+            RobustLoss::Huber { delta } => {
+                let r = s.sqrt();
+                if r <= delta { 1.0 } else { delta / r }
+            }
+            RobustLoss::Cauchy { c } => 1.0 / (1.0 + s / (c * c)),
+        }
+    }
+}
+
+/// Result of a refinement.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct LmFit {
+    /// Refined point (map frame).
+    pub point: Point3<f64>,
+    /// Non-robust χ² of the angular residuals, Σ eᵢᵀWᵢeᵢ (2N − 3 dof under the model).
+    pub chi2: f64,
+    /// Iterations taken.
+    pub iterations: usize,
+    /// Whether the step size fell below tolerance.
+    pub converged: bool,
+}
+
+/// Per-ray precomputation: tangent basis of the measured direction.
+struct Term {
+    b: Matrix2x3<f64>,
+}
+
+fn residual(ray: &Ray, term: &Term, x: &Point3<f64>) -> Option<(Vector2<f64>, Vector3<f64>, f64)> {
+    let v = x - ray.origin;
+    let r = v.norm();
+    // Cheirality: the point must lie in front of the array.
+    if !(r > 0.0) || ray.direction.dot(&v) <= 0.0 {
+        return None;
+    }
+    let u = v / r;
+    Some((term.b * u, u, r))
+}
+
+/// Robust cost at x, or `None` if x is behind an array.
+fn total_cost(rays: &[Ray], terms: &[Term], x: &Point3<f64>, loss: RobustLoss) -> Option<(f64, f64)> {
+    let (mut robust, mut chi2) = (0.0, 0.0);
+    for (ray, t) in rays.iter().zip(terms) {
+        let (e, _, r) = residual(ray, t, x)?;
+        let s = e.norm_squared() / ray.angular_variance(r.max(MIN_RANGE_M));
+        robust += loss.cost(s);
+        chi2 += s;
+    }
+    Some((robust, chi2))
+}
+
+/// Minimizes Σ ρ(eᵢᵀWᵢeᵢ) with eᵢ = Bᵢᵀ(x − oᵢ)/‖x − oᵢ‖ from `init`. The start must be in
+/// front of every array; steps that would cross behind one are refused.
+pub fn refine(rays: &[Ray], init: Point3<f64>, loss: RobustLoss, max_iterations: usize) -> LmFit {
+    let terms: Vec<Term> = rays
+        .iter()
+        .map(|r| {
+            let (b1, b2) = tangent_basis(&r.direction);
+            Term { b: Matrix2x3::from_rows(&[b1.transpose(), b2.transpose()]) }
+        })
+        .collect();
+    let mut x = init;
+    let Some((mut cost, mut chi2)) = total_cost(rays, &terms, &x, loss) else {
+        return LmFit { point: init, chi2: f64::INFINITY, iterations: 0, converged: false };
+    };
+    let mut mu = 1e-3;
+    let mut converged = false;
+    let mut iterations = 0;
+    while iterations < max_iterations && !converged {
+        iterations += 1;
+        let mut h = Matrix3::zeros();
+        let mut g = Vector3::zeros();
+        for (ray, t) in rays.iter().zip(&terms) {
+            let (e, u, r) = residual(ray, t, &x).expect("current point is in front of every array");
+            let w = 1.0 / ray.angular_variance(r.max(MIN_RANGE_M));
+            let jac = t.b * (Matrix3::identity() - u * u.transpose()) / r;
+            let omega = loss.weight(e.norm_squared() * w) * w;
+            h += jac.transpose() * jac * omega;
+            g += jac.transpose() * e * omega;
+        }
+        let mut improved = false;
+        for _ in 0..12 {
+            let damped = h + Matrix3::from_diagonal(&h.diagonal()) * mu;
+            let Some(step) = damped.cholesky().map(|c| c.solve(&(-g))) else {
+                mu *= 10.0;
+                continue;
+            };
+            let candidate = x + step;
+            match total_cost(rays, &terms, &candidate, loss) {
+                Some((c, k)) if c < cost => {
+                    converged = step.norm() < 1e-10 * (1.0 + x.coords.norm());
+                    x = candidate;
+                    cost = c;
+                    chi2 = k;
+                    mu = (mu / 3.0).max(1e-12);
+                    improved = true;
+                    break;
+                }
+                _ => mu *= 4.0,
+            }
+        }
+        if !improved {
+            // No step lowers the cost: x is a minimum to working precision.
+            converged = true;
+        }
+    }
+    LmFit { point: x, chi2, iterations, converged }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use nalgebra::Unit;
+
+    fn rays_to(s: Point3<f64>, origins: &[[f64; 3]]) -> Vec<Ray> {
+        origins
+            .iter()
+            .map(|o| {
+                let origin = Point3::from(*o);
+                Ray {
+                    origin,
+                    direction: Unit::new_normalize(s - origin),
+                    sigma_rad: 0.05,
+                    origin_sigma_m: 0.0,
+                }
+            })
+            .collect()
+    }
+
+    #[test]
+    fn converges_to_the_exact_point() {
+        let s = Point3::new(1.0, 2.0, 1.2);
+        let rays = rays_to(s, &[[0.0, 0.0, 0.5], [4.0, 0.0, 0.5], [2.0, 5.0, 0.4], [-2.0, 3.0, 0.5]]);
+        let fit = refine(&rays, s + Vector3::new(0.3, -0.2, 0.1), RobustLoss::default(), 30);
+        assert!((fit.point - s).norm() < 1e-9, "{}", (fit.point - s).norm());
+        assert!(fit.chi2 < 1e-12 && fit.converged);
+    }
+
+    #[test]
+    fn cauchy_loss_resists_one_wrong_ray() {
+        let s = Point3::new(1.0, 2.0, 1.2);
+        let mut rays = rays_to(
+            s,
+            &[[0.0, 0.0, 0.5], [4.0, 0.0, 0.5], [2.0, 5.0, 0.4], [-2.0, 3.0, 0.5], [4.0, 4.0, 0.5]],
+        );
+        // A mirror-source DoA 30° off for the last robot.
+        let rot = nalgebra::Rotation3::from_axis_angle(&Vector3::z_axis(), 30f64.to_radians());
+        rays[4].direction = Unit::new_normalize(rot * rays[4].direction.into_inner());
+        let ls = super::super::least_squares::weighted_least_squares(&rays, 3).unwrap();
+        let plain = refine(&rays, ls, RobustLoss::None, 50);
+        let robust = refine(&rays, ls, RobustLoss::Cauchy { c: 2.4 }, 50);
+        assert!(
+            (robust.point - s).norm() < 0.5 * (plain.point - s).norm(),
+            "robust {} plain {}",
+            (robust.point - s).norm(),
+            (plain.point - s).norm()
+        );
+    }
+
+    #[test]
+    fn start_behind_an_array_is_reported_not_nan() {
+        let s = Point3::new(1.0, 2.0, 1.2);
+        let rays = rays_to(s, &[[0.0, 0.0, 0.5], [4.0, 0.0, 0.5], [2.0, 5.0, 0.4]]);
+        let fit = refine(&rays, Point3::new(-5.0, -5.0, 0.0), RobustLoss::default(), 10);
+        assert!(fit.chi2.is_infinite() && !fit.converged);
+    }
+}

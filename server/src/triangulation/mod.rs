@@ -1,0 +1,333 @@
+//! Triangulation of a source from bearing rays, with honest uncertainty.
+//!
+//! - [`pair`]: the paper's ray-to-ray closest point and its weighted form;
+//! - [`least_squares`]: N rays, iteratively reweighted least squares;
+//! - [`lm`]: Levenberg–Marquardt on angular residuals with a robust loss (N ≥ 3).
+//!
+//! [`triangulate`] picks the estimator (weighted pair for two rays, LS + LM for
+//! more, as theory §1.5 recommends), attaches the covariance (inverse Fisher
+//! information at the estimate), GDOP, θ and condition number, and decides a
+//! gate. Geometries that give no point are [`Triangulation::Degenerate`]
+//! outcomes, never errors and never NaN.
+
+pub mod least_squares;
+pub mod lm;
+pub mod pair;
+
+use std::fmt;
+
+use nalgebra::Point3;
+use serde::Deserialize;
+
+pub use lm::RobustLoss;
+
+use crate::ray::Ray;
+use crate::stats::chi2_quantile;
+use crate::uncertainty::{GeometryQuality, Sensor, angle_between_deg, assess, condition_number};
+
+/// Settings of [`triangulate`].
+#[derive(Clone, Debug, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct TriangulationConfig {
+    /// A closest point nearer than this along any ray (or behind it) is rejected (m).
+    pub min_range_m: f64,
+    /// Rays closer than this to parallel give no point (degrees).
+    pub min_ray_angle_deg: f64,
+    /// Gate: largest accepted condition number κ (2/(1 − |cos θ|) for two rays; 30 ⇔ θ ≈ 21°).
+    pub max_condition_number: f64,
+    /// Gate: largest accepted predicted RMS error √tr(J⁻¹) (m).
+    pub max_rms_m: f64,
+    /// Gate: residual χ² is tested at this probability (2N − 3 dof).
+    pub residual_probability: f64,
+    /// Gate: largest accepted distance from any array to the estimate (m).
+    pub max_range_m: f64,
+    /// IRLS reweighting passes of the least-squares solve.
+    pub reweight_iterations: usize,
+    /// Iteration cap of the Levenberg–Marquardt refinement (N ≥ 3); 0 disables it.
+    pub lm_max_iterations: usize,
+    /// Robust loss of the refinement.
+    pub robust_loss: RobustLoss,
+    /// Angular σ floor (rad), so that no ray gets infinite weight.
+    pub min_sigma_rad: f64,
+}
+
+impl Default for TriangulationConfig {
+    fn default() -> Self {
+        TriangulationConfig {
+            min_range_m: 0.3,
+            min_ray_angle_deg: 0.5,
+            max_condition_number: 30.0,
+            max_rms_m: 0.5,
+            residual_probability: 0.999,
+            max_range_m: 50.0,
+            reweight_iterations: 3,
+            lm_max_iterations: 50,
+            robust_loss: RobustLoss::default(),
+            min_sigma_rad: 1e-4,
+        }
+    }
+}
+
+/// Which estimator produced a point.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Method {
+    /// Two rays: weighted closest point.
+    RayPair,
+    /// N rays: IRLS least squares (refinement disabled).
+    LeastSquares,
+    /// N ≥ 3 rays: LS then Levenberg–Marquardt with a robust loss.
+    LevenbergMarquardt,
+}
+
+/// Why rays give no point.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Degeneracy {
+    /// Fewer than two rays.
+    TooFewRays {
+        /// Rays given.
+        count: usize,
+    },
+    /// The rays are (near) parallel: all pairwise angles below the threshold.
+    NearParallel {
+        /// Largest angle between two ray directions (degrees).
+        ray_angle_deg: f64,
+    },
+    /// The closest point lies behind (or too close in front of) an array.
+    BehindArray {
+        /// Index of the ray.
+        ray: usize,
+        /// Distance along that ray to the point (m); negative is behind.
+        along_m: f64,
+        /// Largest angle between two ray directions (degrees).
+        ray_angle_deg: f64,
+    },
+}
+
+impl fmt::Display for Degeneracy {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            Degeneracy::TooFewRays { count } => write!(f, "{count} ray(s): at least 2 needed"),
+            Degeneracy::NearParallel { ray_angle_deg } => {
+                write!(f, "rays near parallel (angle {ray_angle_deg:.2}°)")
+            }
+            Degeneracy::BehindArray { ray, along_m, .. } => {
+                write!(f, "closest point {along_m:.2} m along ray {ray}: behind or at the array")
+            }
+        }
+    }
+}
+
+/// Why the gate rejected a point.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum GateReason {
+    /// The geometry is ill-conditioned (θ too small or too close to 180°).
+    IllConditioned {
+        /// κ found.
+        kappa: f64,
+        /// Largest accepted.
+        max: f64,
+    },
+    /// The predicted RMS error is too large.
+    Uncertain {
+        /// √tr(J⁻¹) (m).
+        rms_m: f64,
+        /// Largest accepted (m).
+        max: f64,
+    },
+    /// The rays disagree more than their noise allows.
+    Inconsistent {
+        /// Residual χ².
+        chi2: f64,
+        /// Threshold at the configured probability.
+        threshold: f64,
+        /// Degrees of freedom.
+        dof: usize,
+    },
+    /// The point is further than any plausible source.
+    TooFar {
+        /// Largest range from an array (m).
+        range_m: f64,
+        /// Largest accepted (m).
+        max: f64,
+    },
+}
+
+impl fmt::Display for GateReason {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            GateReason::IllConditioned { kappa, max } => {
+                write!(f, "ill-conditioned geometry (κ {kappa:.1} > {max})")
+            }
+            GateReason::Uncertain { rms_m, max } => write!(f, "predicted RMS error {rms_m:.2} m > {max} m"),
+            GateReason::Inconsistent { chi2, threshold, dof } => {
+                write!(f, "rays inconsistent (χ² {chi2:.1} > {threshold:.1}, {dof} dof)")
+            }
+            GateReason::TooFar { range_m, max } => write!(f, "range {range_m:.1} m > {max} m"),
+        }
+    }
+}
+
+/// The gate's decision.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Gate {
+    /// The point can be trusted to its covariance.
+    Accepted,
+    /// The point exists but should not be trusted.
+    Rejected(GateReason),
+}
+
+/// A triangulated point with its uncertainty.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Solution {
+    /// Estimator used.
+    pub method: Method,
+    /// Estimated source position, map frame (m).
+    pub point: Point3<f64>,
+    /// Covariance, GDOP, θ and ranges at the estimate.
+    pub quality: GeometryQuality,
+    /// Condition number of the equal-weight normalized LS matrix.
+    pub condition_number: f64,
+    /// Two rays: distance between their closest points (m).
+    pub miss_distance_m: Option<f64>,
+    /// Residual χ² (2 rays: the miss-distance statistic).
+    pub residual_chi2: f64,
+    /// Its degrees of freedom, 2N − 3.
+    pub residual_dof: usize,
+    /// Gate decision.
+    pub gate: Gate,
+}
+
+/// Outcome of a triangulation.
+#[derive(Clone, Debug, PartialEq)]
+pub enum Triangulation {
+    /// A point was found (trusted or not: see its gate).
+    Solved(Solution),
+    /// The rays give no point.
+    Degenerate(Degeneracy),
+}
+
+impl Triangulation {
+    /// The solution, if any.
+    pub fn solution(&self) -> Option<&Solution> {
+        match self {
+            Triangulation::Solved(s) => Some(s),
+            Triangulation::Degenerate(_) => None,
+        }
+    }
+}
+
+/// Largest angle between the directions of any two rays (degrees).
+fn max_ray_angle_deg(rays: &[Ray]) -> f64 {
+    let mut best: f64 = 0.0;
+    for i in 0..rays.len() {
+        for j in (i + 1)..rays.len() {
+            best = best.max(angle_between_deg(&rays[i].direction, &rays[j].direction));
+        }
+    }
+    best
+}
+
+/// Triangulates a source from `rays` (at least two, from different arrays).
+pub fn triangulate(rays: &[Ray], config: &TriangulationConfig) -> Triangulation {
+    let n = rays.len();
+    if n < 2 {
+        return Triangulation::Degenerate(Degeneracy::TooFewRays { count: n });
+    }
+    let floored: Vec<Ray>;
+    let rays = if rays.iter().any(|r| r.sigma_rad < config.min_sigma_rad) {
+        floored =
+            rays.iter().map(|r| Ray { sigma_rad: r.sigma_rad.max(config.min_sigma_rad), ..*r }).collect();
+        &floored[..]
+    } else {
+        rays
+    };
+    let min_sin2 = config.min_ray_angle_deg.to_radians().sin().powi(2);
+    let (method, point, miss, chi2) = if n == 2 {
+        let cp = match pair::closest_points(&rays[0], &rays[1]) {
+            Some(cp) if cp.sin2 >= min_sin2 => cp,
+            _ => {
+                return Triangulation::Degenerate(Degeneracy::NearParallel {
+                    ray_angle_deg: max_ray_angle_deg(rays),
+                });
+            }
+        };
+        let (point, chi2) = pair::weighted_pair_point(&rays[0], &rays[1], &cp);
+        (Method::RayPair, point, Some(cp.miss_m), chi2)
+    } else {
+        if max_ray_angle_deg(rays) < config.min_ray_angle_deg {
+            return Triangulation::Degenerate(Degeneracy::NearParallel {
+                ray_angle_deg: max_ray_angle_deg(rays),
+            });
+        }
+        let Some(ls) = least_squares::weighted_least_squares(rays, config.reweight_iterations) else {
+            return Triangulation::Degenerate(Degeneracy::NearParallel {
+                ray_angle_deg: max_ray_angle_deg(rays),
+            });
+        };
+        if let Some(d) = behind(rays, &ls, config.min_range_m) {
+            return Triangulation::Degenerate(d);
+        }
+        if config.lm_max_iterations > 0 {
+            let fit = lm::refine(rays, ls, config.robust_loss, config.lm_max_iterations);
+            (Method::LevenbergMarquardt, fit.point, None, fit.chi2)
+        } else {
+            let chi2 = lm::refine(rays, ls, RobustLoss::None, 0).chi2;
+            (Method::LeastSquares, ls, None, chi2)
+        }
+    };
+    if let Some(d) = behind(rays, &point, config.min_range_m) {
+        return Triangulation::Degenerate(d);
+    }
+    let sensors: Vec<Sensor> = rays.iter().map(Sensor::from).collect();
+    let quality = assess(&sensors, &point);
+    let directions: Vec<_> = rays.iter().map(|r| r.direction).collect();
+    let condition_number = condition_number(&directions);
+    let dof = 2 * n - 3;
+    let gate = gate(rays, &point, &quality, condition_number, chi2, dof, config);
+    Triangulation::Solved(Solution {
+        method,
+        point,
+        quality,
+        condition_number,
+        miss_distance_m: miss,
+        residual_chi2: chi2,
+        residual_dof: dof,
+        gate,
+    })
+}
+
+fn behind(rays: &[Ray], p: &Point3<f64>, min_range_m: f64) -> Option<Degeneracy> {
+    rays.iter().enumerate().find_map(|(i, r)| {
+        let s = r.along(p);
+        (s < min_range_m).then(|| Degeneracy::BehindArray {
+            ray: i,
+            along_m: s,
+            ray_angle_deg: max_ray_angle_deg(rays),
+        })
+    })
+}
+
+fn gate(
+    rays: &[Ray],
+    p: &Point3<f64>,
+    q: &GeometryQuality,
+    kappa: f64,
+    chi2: f64,
+    dof: usize,
+    c: &TriangulationConfig,
+) -> Gate {
+    let range_m = rays.iter().map(|r| (p - r.origin).norm()).fold(0.0, f64::max);
+    let threshold = chi2_quantile(dof, c.residual_probability);
+    let reason = if range_m > c.max_range_m {
+        Some(GateReason::TooFar { range_m, max: c.max_range_m })
+    } else if !(kappa <= c.max_condition_number) {
+        Some(GateReason::IllConditioned { kappa, max: c.max_condition_number })
+    } else if !(q.rms_m <= c.max_rms_m) {
+        Some(GateReason::Uncertain { rms_m: q.rms_m, max: c.max_rms_m })
+    } else if !(chi2 <= threshold) {
+        Some(GateReason::Inconsistent { chi2, threshold, dof })
+    } else {
+        None
+    };
+    reason.map_or(Gate::Accepted, Gate::Rejected)
+}
