@@ -7,9 +7,13 @@
 //!   Levenberg–Marquardt refinement, gate decisions.
 //! - [`uncertainty`]: Fisher information, covariance, GDOP, θ, conditioning.
 //! - [`stats`]: χ² quantiles for gates.
+//! - [`tracking`]: 3D constant-velocity Kalman tracking of a source from DoAs.
+//! - [`planner`]: where robots should go to keep θ in band (Clarabel).
 
+pub mod planner;
 pub mod ray;
 pub mod stats;
+pub mod tracking;
 pub mod triangulation;
 pub mod uncertainty;
 
