@@ -47,6 +47,14 @@ pub enum AgentError {
         /// What is wrong.
         message: String,
     },
+    /// ODAS SST output is malformed.
+    #[error("{source_name}: {message}")]
+    Odas {
+        /// The SST file (`name:line`) or socket.
+        source_name: String,
+        /// What is wrong.
+        message: String,
+    },
     /// The link to the coordinator failed.
     #[error("coordinator link: {0}")]
     Link(String),
