@@ -5,7 +5,11 @@
 //!   sensor and diffuse noise, moving sources and arrays.
 //! - [`kinematics`]: differential-drive robots, waypoint trajectories, a navigator.
 //! - [`slam_noise`]: the pose error a SLAM system adds (noise and slow drift).
+//! - [`error`]: [`SimError`].
 
 pub mod acoustics;
+pub mod error;
 pub mod kinematics;
 pub mod slam_noise;
+
+pub use error::SimError;
