@@ -1,1 +1,452 @@
-//! (in progress)
+//! 3-D constant-velocity Kalman tracking of one sound source from the robots'
+//! DoAs (theory §4).
+//!
+//! - [`filter`]: the CV model and the per-DoA tangent-plane EKF update (Joseph form);
+//! - [`lag_buffer`]: the fixed-lag buffer that applies late DoAs exactly;
+//! - [`lifecycle`]: tentative → confirmed → lost;
+//! - [`config`]: [`TrackerConfig`] and its validation.
+//!
+//! [`SourceTracker`] ties them together. It is pure: stamps and `now` are inputs.
+//! Use:
+//! 1. when there is no active track ([`SourceTracker::needs_track`]), start one
+//!    from a trusted triangulation ([`SourceTracker::initialize_from_triangulation`]),
+//!    stamped with the newest stamp of the rays it used: DoAs stamped at or before
+//!    it are refused ([`UpdateOutcome::BeforeTrack`]), since their information is
+//!    already in the initial covariance;
+//! 2. feed every robot's DoA ray for this source, in any order within the lag, to
+//!    [`SourceTracker::update`]; each is gated by χ² (2 dof) and applied or counted;
+//! 3. call [`SourceTracker::maintain`] with `now` regularly (lifecycle timeouts);
+//! 4. publish [`SourceTracker::estimate`] or [`SourceTracker::predict_to`]`(now)`:
+//!    its [`TrackEstimate::trusted`] is false unless the track is confirmed and its
+//!    position RMS is within [`TrackerConfig::trusted_max_rms_m`].
+
+pub mod config;
+pub mod filter;
+pub mod lag_buffer;
+pub mod lifecycle;
+
+use std::cmp::Ordering;
+
+use nalgebra::{Matrix3, Matrix6, Point3, Vector3};
+use soundmap_proto::Stamp;
+
+pub use config::{TrackerConfig, TrackerConfigError};
+pub use filter::{CvState, ProcessNoise, Unusable};
+pub use lifecycle::{LossReason, TrackState};
+
+use crate::ray::Ray;
+use crate::stats::chi2_quantile;
+use crate::triangulation::{Gate, Triangulation};
+use filter::{DoaNoiseModel, doa_innovation, joseph_update};
+use lag_buffer::{Insertion, LagBuffer, Refusal};
+use lifecycle::{Confirmation, LifecycleRules, check_loss};
+
+/// What became of one DoA given to [`SourceTracker::update`].
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum UpdateOutcome {
+    /// Passed the gate and updated the track.
+    Applied {
+        /// Its normalized innovation squared (χ², 2 dof).
+        nis: f64,
+    },
+    /// Failed the χ² gate: counted, not applied.
+    Gated {
+        /// Its NIS.
+        nis: f64,
+        /// The gate it exceeded (χ² 2 dof at the association or maintenance probability).
+        threshold: f64,
+    },
+    /// The geometry or the numbers make the DoA useless (counted, not applied).
+    Unusable(Unusable),
+    /// Older than the fixed lag: dropped and counted.
+    TooLate,
+    /// Stamped at or before the track's initialization: dropped and counted.
+    BeforeTrack,
+    /// There is no active track (none yet, or lost).
+    NoTrack,
+}
+
+/// What became of an initialization.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum InitOutcome {
+    /// A new tentative track (ids increase from 1).
+    Started {
+        /// Its id.
+        track_id: u64,
+    },
+    /// Nothing was changed.
+    Rejected(InitRejection),
+}
+
+/// Why an initialization was refused.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum InitRejection {
+    /// The position or covariance is not finite.
+    NonFinite,
+    /// The covariance is not symmetric positive definite.
+    NotPositiveDefinite,
+    /// The triangulation is degenerate or has no covariance.
+    NoSolution,
+    /// The triangulation's gate rejected it.
+    Untrusted,
+}
+
+/// Counts of what happened to the DoAs of a track.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct TrackCounts {
+    /// Applied updates.
+    pub applied: u64,
+    /// Gated out by χ².
+    pub gated: u64,
+    /// Unusable (too close to an array, or not finite).
+    pub unusable: u64,
+    /// Dropped as older than the lag.
+    pub too_late: u64,
+    /// Dropped as stamped at or before the initialization.
+    pub before_track: u64,
+}
+
+/// A track's estimate at one stamp.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct TrackEstimate {
+    /// Id of the track (changes when re-initialized).
+    pub track_id: u64,
+    /// Time the estimate refers to.
+    pub stamp: Stamp,
+    /// Position, map frame (m).
+    pub position: Point3<f64>,
+    /// Velocity, map frame (m/s).
+    pub velocity: Vector3<f64>,
+    /// Covariance of [x y z vx vy vz] (SI).
+    pub covariance: Matrix6<f64>,
+    /// √tr of the position covariance (m).
+    pub position_rms_m: f64,
+    /// Lifecycle state.
+    pub state: TrackState,
+    /// True only when confirmed and `position_rms_m` ≤ the trusted threshold.
+    pub trusted: bool,
+    /// NIS of the last DoA evaluated (applied or gated).
+    pub last_nis: Option<f64>,
+    /// Mean NIS of the applied updates (≈ 2 when the noise model is right; it
+    /// is contracted somewhat by the gate).
+    pub mean_nis: Option<f64>,
+    /// Stamp of the last applied DoA.
+    pub last_update: Option<Stamp>,
+    /// What happened to the DoAs.
+    pub counts: TrackCounts,
+}
+
+impl TrackEstimate {
+    /// The 3×3 position covariance (m²).
+    pub fn position_covariance(&self) -> Matrix3<f64> {
+        self.covariance.fixed_view::<3, 3>(0, 0).into_owned()
+    }
+}
+
+/// A DoA as buffered: the robot it came from and its ray. Ordered by robot
+/// then ray numbers (total order), so that equal stamps replay in one order.
+#[derive(Clone, Copy, Debug)]
+struct Observation {
+    robot: u32,
+    ray: Ray,
+}
+
+impl Observation {
+    fn numbers(&self) -> [f64; 8] {
+        let (o, d) = (&self.ray.origin, &self.ray.direction);
+        [o.x, o.y, o.z, d.x, d.y, d.z, self.ray.sigma_rad, self.ray.origin_sigma_m]
+    }
+}
+
+impl Ord for Observation {
+    fn cmp(&self, other: &Self) -> Ordering {
+        self.robot.cmp(&other.robot).then_with(|| {
+            let (a, b) = (self.numbers(), other.numbers());
+            a.iter().zip(&b).map(|(x, y)| x.total_cmp(y)).find(|c| c.is_ne()).unwrap_or(Ordering::Equal)
+        })
+    }
+}
+
+impl PartialOrd for Observation {
+    fn partial_cmp(&self, other: &Self) -> Option<Ordering> {
+        Some(self.cmp(other))
+    }
+}
+
+impl PartialEq for Observation {
+    fn eq(&self, other: &Self) -> bool {
+        self.cmp(other).is_eq()
+    }
+}
+
+impl Eq for Observation {}
+
+/// Everything about a track that depends on the sorted DoA sequence: the
+/// filter and the lifecycle's history. The lag buffer stores one after each DoA.
+#[derive(Clone, Copy, Debug)]
+struct Snapshot {
+    stamp: Stamp,
+    filter: CvState,
+    confirmation: Confirmation,
+    last_update: Option<Stamp>,
+    last_nis: Option<f64>,
+    nis_sum: f64,
+    applied: u64,
+    gated: u64,
+    unusable: u64,
+}
+
+/// The numbers a DoA step needs.
+#[derive(Clone, Copy, Debug)]
+struct StepParams {
+    noise: ProcessNoise,
+    doa: DoaNoiseModel,
+    rules: LifecycleRules,
+    association_gate: f64,
+    maintenance_gate: f64,
+}
+
+/// Predicts `prev` to `stamp` and applies (or gates) one DoA.
+fn step(prev: &Snapshot, stamp: Stamp, obs: &Observation, p: &StepParams) -> (Snapshot, UpdateOutcome) {
+    let predicted = prev.filter.predicted(stamp.seconds_since(prev.stamp).max(0.0), &p.noise);
+    let mut next = Snapshot { stamp, filter: predicted, ..*prev };
+    let inn = match doa_innovation(&predicted, &obs.ray, &p.doa) {
+        Ok(inn) => inn,
+        Err(u) => {
+            next.unusable += 1;
+            return (next, UpdateOutcome::Unusable(u));
+        }
+    };
+    let threshold = if prev.confirmation.is_confirmed() { p.maintenance_gate } else { p.association_gate };
+    next.last_nis = Some(inn.nis);
+    if !(inn.nis <= threshold) {
+        next.gated += 1;
+        return (next, UpdateOutcome::Gated { nis: inn.nis, threshold });
+    }
+    let Some(post) = joseph_update(&predicted, &inn) else {
+        next.unusable += 1;
+        return (next, UpdateOutcome::Unusable(Unusable::NonFinite));
+    };
+    next.filter = post;
+    next.applied += 1;
+    next.nis_sum += inn.nis;
+    next.last_update = Some(stamp);
+    next.confirmation.record(stamp, obs.robot, post.position_rms_m(), &p.rules);
+    (next, UpdateOutcome::Applied { nis: inn.nis })
+}
+
+#[derive(Clone, Debug)]
+struct Track {
+    id: u64,
+    buffer: LagBuffer<Observation, Snapshot>,
+    lost: Option<LossReason>,
+    too_late: u64,
+    before_track: u64,
+}
+
+/// Tracks one source from DoAs: a CV EKF with per-DoA updates, χ² gating, an
+/// exact fixed-lag buffer for late DoAs and a lifecycle (see the module docs).
+#[derive(Clone, Debug)]
+pub struct SourceTracker {
+    config: TrackerConfig,
+    params: StepParams,
+    track: Option<Track>,
+    last_id: u64,
+}
+
+impl SourceTracker {
+    /// A tracker with no track. `config` should have passed
+    /// [`TrackerConfig::validate`]; out-of-range counts are clamped.
+    pub fn new(config: TrackerConfig) -> Self {
+        let params = StepParams {
+            noise: config.process_noise(),
+            doa: config.doa_noise(),
+            rules: config.lifecycle(),
+            association_gate: chi2_quantile(2, config.association_probability),
+            maintenance_gate: chi2_quantile(2, config.maintenance_probability),
+        };
+        SourceTracker { config, params, track: None, last_id: 0 }
+    }
+
+    /// The configuration.
+    pub fn config(&self) -> &TrackerConfig {
+        &self.config
+    }
+
+    /// The χ² (2 dof) threshold for associating a DoA to the track by its [`nis`](Self::nis).
+    pub fn association_threshold(&self) -> f64 {
+        self.params.association_gate
+    }
+
+    /// True when there is no track or it is lost: initialize one.
+    pub fn needs_track(&self) -> bool {
+        self.track.as_ref().is_none_or(|t| t.lost.is_some())
+    }
+
+    /// Starts a new tentative track at `stamp` from a position (map frame, m) and
+    /// its 3×3 covariance (m², used as given); the velocity starts at zero with
+    /// the configured variances. Replaces any current track.
+    pub fn initialize(
+        &mut self,
+        stamp: Stamp,
+        position: Point3<f64>,
+        covariance: Matrix3<f64>,
+    ) -> InitOutcome {
+        if !position.iter().chain(covariance.iter()).all(|v| v.is_finite()) {
+            return InitOutcome::Rejected(InitRejection::NonFinite);
+        }
+        let covariance = (covariance + covariance.transpose()) * 0.5;
+        if covariance.cholesky().is_none() {
+            return InitOutcome::Rejected(InitRejection::NotPositiveDefinite);
+        }
+        let mut p = Matrix6::zeros();
+        p.fixed_view_mut::<3, 3>(0, 0).copy_from(&covariance);
+        let (h, v) = (
+            self.config.initial_velocity_sigma_horizontal_m_per_s,
+            self.config.initial_velocity_sigma_vertical_m_per_s,
+        );
+        p[(3, 3)] = h * h;
+        p[(4, 4)] = h * h;
+        p[(5, 5)] = v * v;
+        let start = Snapshot {
+            stamp,
+            filter: CvState::new(position, Vector3::zeros(), p),
+            confirmation: Confirmation::default(),
+            last_update: None,
+            last_nis: None,
+            nis_sum: 0.0,
+            applied: 0,
+            gated: 0,
+            unusable: 0,
+        };
+        self.last_id += 1;
+        self.track = Some(Track {
+            id: self.last_id,
+            buffer: LagBuffer::new(start, stamp, self.config.lag_ns(), self.config.max_buffered),
+            lost: None,
+            too_late: 0,
+            before_track: 0,
+        });
+        InitOutcome::Started { track_id: self.last_id }
+    }
+
+    /// Starts a track from a triangulation whose gate accepted it, with its
+    /// covariance × [`TrackerConfig::init_covariance_inflation`]. `stamp` should
+    /// be the newest stamp of the rays it used.
+    pub fn initialize_from_triangulation(
+        &mut self,
+        stamp: Stamp,
+        triangulation: &Triangulation,
+    ) -> InitOutcome {
+        let Some(solution) = triangulation.solution() else {
+            return InitOutcome::Rejected(InitRejection::NoSolution);
+        };
+        if solution.gate != Gate::Accepted {
+            return InitOutcome::Rejected(InitRejection::Untrusted);
+        }
+        let Some(covariance) = solution.quality.covariance else {
+            return InitOutcome::Rejected(InitRejection::NoSolution);
+        };
+        self.initialize(stamp, solution.point, covariance * self.config.init_covariance_inflation)
+    }
+
+    /// Drops the current track.
+    pub fn clear(&mut self) {
+        self.track = None;
+    }
+
+    /// Applies the DoA `ray` (map frame) of robot `robot`, stamped `stamp`: in
+    /// order if it is the newest, else inserted and the later DoAs re-run.
+    pub fn update(&mut self, stamp: Stamp, robot: u32, ray: &Ray) -> UpdateOutcome {
+        let params = self.params;
+        let Some(track) = self.track.as_mut().filter(|t| t.lost.is_none()) else {
+            return UpdateOutcome::NoTrack;
+        };
+        let observation = Observation { robot, ray: *ray };
+        match track.buffer.insert(stamp, observation, |s, t, o| step(s, t, o, &params)) {
+            Insertion::Processed { result, .. } => result,
+            Insertion::Refused(Refusal::TooLate) => {
+                track.too_late += 1;
+                UpdateOutcome::TooLate
+            }
+            Insertion::Refused(Refusal::BeforeStart) => {
+                track.before_track += 1;
+                UpdateOutcome::BeforeTrack
+            }
+        }
+    }
+
+    /// NIS of a DoA against the track at `stamp` without changing anything (for
+    /// association: compare with [`association_threshold`](Self::association_threshold)).
+    /// `None` when there is no active track, the stamp is outside the lag, or the
+    /// DoA is unusable.
+    pub fn nis(&self, stamp: Stamp, ray: &Ray) -> Option<f64> {
+        let track = self.track.as_ref().filter(|t| t.lost.is_none())?;
+        let (before, _) = track.buffer.state_before(stamp)?;
+        let predicted =
+            before.filter.predicted(stamp.seconds_since(before.stamp).max(0.0), &self.params.noise);
+        doa_innovation(&predicted, ray, &self.params.doa).ok().map(|i| i.nis)
+    }
+
+    /// Declares the track lost if it has been silent too long or its covariance
+    /// predicted to `now` is too large (see [`lifecycle`]).
+    pub fn maintain(&mut self, now: Stamp) {
+        let noise = self.params.noise;
+        let rules = self.params.rules;
+        let Some(track) = self.track.as_mut().filter(|t| t.lost.is_none()) else {
+            return;
+        };
+        let (s, _) = track.buffer.latest();
+        let rms = s.filter.predicted(now.seconds_since(s.stamp).max(0.0), &noise).position_rms_m();
+        let last = s.last_update.unwrap_or(track.buffer.start());
+        track.lost = check_loss(s.confirmation.is_confirmed(), now, last, rms, &rules);
+    }
+
+    /// The estimate at the newest DoA's stamp (or the initialization); `None` without a track.
+    pub fn estimate(&self) -> Option<TrackEstimate> {
+        let track = self.track.as_ref()?;
+        let (s, _) = track.buffer.latest();
+        Some(self.describe(track, s, s.stamp, s.filter))
+    }
+
+    /// The estimate predicted to `stamp` without changing the track (a stamp
+    /// before the newest DoA gives the newest estimate; its `stamp` says so).
+    pub fn predict_to(&self, stamp: Stamp) -> Option<TrackEstimate> {
+        let track = self.track.as_ref()?;
+        let (s, _) = track.buffer.latest();
+        let dt = stamp.seconds_since(s.stamp);
+        if dt <= 0.0 {
+            return Some(self.describe(track, s, s.stamp, s.filter));
+        }
+        Some(self.describe(track, s, stamp, s.filter.predicted(dt, &self.params.noise)))
+    }
+
+    fn describe(&self, track: &Track, s: &Snapshot, stamp: Stamp, filter: CvState) -> TrackEstimate {
+        let state = match track.lost {
+            Some(reason) => TrackState::Lost(reason),
+            None if s.confirmation.is_confirmed() => TrackState::Confirmed,
+            None => TrackState::Tentative,
+        };
+        let position_rms_m = filter.position_rms_m();
+        TrackEstimate {
+            track_id: track.id,
+            stamp,
+            position: filter.position(),
+            velocity: filter.velocity(),
+            covariance: filter.covariance,
+            position_rms_m,
+            state,
+            trusted: state == TrackState::Confirmed && position_rms_m <= self.config.trusted_max_rms_m,
+            last_nis: s.last_nis,
+            mean_nis: (s.applied > 0).then(|| s.nis_sum / s.applied as f64),
+            last_update: s.last_update,
+            counts: TrackCounts {
+                applied: s.applied,
+                gated: s.gated,
+                unusable: s.unusable,
+                too_late: track.too_late,
+                before_track: track.before_track,
+            },
+        }
+    }
+}

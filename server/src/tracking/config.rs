@@ -1,0 +1,221 @@
+//! Settings of the source tracker, with documented defaults and validation.
+
+use serde::Deserialize;
+
+use super::filter::{DoaNoiseModel, ProcessNoise};
+use super::lifecycle::{LifecycleRules, MAX_CONFIRM_UPDATES};
+use crate::ray::MIN_RANGE_M;
+
+/// Settings of [`SourceTracker`](super::SourceTracker). Times are seconds,
+/// distances metres, probabilities in (0, 1).
+#[derive(Clone, Debug, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct TrackerConfig {
+    /// Horizontal (x, y) white-noise acceleration PSD q̃ (m²/s³). Default 0.5:
+    /// σ_a ≈ 1 m/s² over τ ≈ 0.5 s, a walking person (theory §4.1). Use ~1e-3
+    /// for a seated or static talker.
+    pub accel_psd_horizontal_m2_per_s3: f64,
+    /// Vertical (z) PSD q̃ (m²/s³). Default 0.01: talker height changes slowly.
+    pub accel_psd_vertical_m2_per_s3: f64,
+    /// 1-σ of the initial horizontal velocity (m/s). Default 1.0 (theory §4.2).
+    pub initial_velocity_sigma_horizontal_m_per_s: f64,
+    /// 1-σ of the initial vertical velocity (m/s). Default 0.3.
+    pub initial_velocity_sigma_vertical_m_per_s: f64,
+    /// Factor on a triangulation's covariance when it initializes a track.
+    /// Default 1.5: that covariance is a Cramér–Rao floor (theory §7).
+    pub init_covariance_inflation: f64,
+    /// Factor on each DoA's σ_eff² (theory §7: 1.5–2 for reverberant rooms).
+    /// Default 1.5; 1.0 is the ideal model.
+    pub doa_variance_inflation: f64,
+    /// Floor on a DoA's σ (rad). Default 1e-4.
+    pub min_sigma_rad: f64,
+    /// A predicted source closer than this to an array gets no update from it (m).
+    /// Default 0.3 (the far-field limit used by the rays).
+    pub min_range_m: f64,
+    /// χ² (2 dof) gate probability of a tentative track, where a DoA must
+    /// *associate* to it. Default 0.99 (9.21, theory §4.3). Also the gate of [`SourceTracker::nis`](super::SourceTracker::nis) callers should use
+    /// for association, see [`SourceTracker::association_threshold`](super::SourceTracker::association_threshold).
+    pub association_probability: f64,
+    /// χ² (2 dof) gate probability of a confirmed track (maintenance). Default 0.999 (13.82).
+    pub maintenance_probability: f64,
+    /// Fixed lag of the out-of-sequence buffer (s): DoAs stamped up to this much
+    /// before the newest are applied exactly; older ones are dropped. Default 0.5.
+    pub lag_s: f64,
+    /// Most DoAs held in the lag buffer (bounds memory and replay cost). Default 256.
+    pub max_buffered: usize,
+    /// Accepted updates needed for confirmation, 1..=16. Default 6.
+    pub confirm_updates: usize,
+    /// Distinct robots among them. Default 2.
+    pub confirm_min_robots: usize,
+    /// Time span they must fall within (s). Default 2.0.
+    pub confirm_window_s: f64,
+    /// Largest position RMS √tr P_pos at confirmation (m). Default 0.5.
+    pub confirm_max_rms_m: f64,
+    /// Silence (no accepted DoA) that loses a tentative track (s). Default 2.0.
+    pub tentative_timeout_s: f64,
+    /// Silence that loses a confirmed track (s). Default 3.0.
+    pub lost_timeout_s: f64,
+    /// Position RMS that loses any track (m). Default 2.0.
+    pub lost_max_rms_m: f64,
+    /// Largest position RMS of an estimate marked trusted (m). Default 0.5.
+    pub trusted_max_rms_m: f64,
+}
+
+impl Default for TrackerConfig {
+    fn default() -> Self {
+        TrackerConfig {
+            accel_psd_horizontal_m2_per_s3: 0.5,
+            accel_psd_vertical_m2_per_s3: 0.01,
+            initial_velocity_sigma_horizontal_m_per_s: 1.0,
+            initial_velocity_sigma_vertical_m_per_s: 0.3,
+            init_covariance_inflation: 1.5,
+            doa_variance_inflation: 1.5,
+            min_sigma_rad: 1e-4,
+            min_range_m: MIN_RANGE_M,
+            association_probability: 0.99,
+            maintenance_probability: 0.999,
+            lag_s: 0.5,
+            max_buffered: 256,
+            confirm_updates: 6,
+            confirm_min_robots: 2,
+            confirm_window_s: 2.0,
+            confirm_max_rms_m: 0.5,
+            tentative_timeout_s: 2.0,
+            lost_timeout_s: 3.0,
+            lost_max_rms_m: 2.0,
+            trusted_max_rms_m: 0.5,
+        }
+    }
+}
+
+/// A tracker setting out of its range.
+#[derive(Clone, Debug, PartialEq, Eq, thiserror::Error)]
+#[error("tracker config: `{field}` {requirement}")]
+pub struct TrackerConfigError {
+    /// The offending field.
+    pub field: &'static str,
+    /// What it must satisfy.
+    pub requirement: &'static str,
+}
+
+impl TrackerConfig {
+    /// Checks every field; the first violation is returned.
+    pub fn validate(&self) -> Result<(), TrackerConfigError> {
+        let fail = |field, requirement| Err(TrackerConfigError { field, requirement });
+        let non_negative = [
+            ("accel_psd_horizontal_m2_per_s3", self.accel_psd_horizontal_m2_per_s3),
+            ("accel_psd_vertical_m2_per_s3", self.accel_psd_vertical_m2_per_s3),
+            ("initial_velocity_sigma_horizontal_m_per_s", self.initial_velocity_sigma_horizontal_m_per_s),
+            ("initial_velocity_sigma_vertical_m_per_s", self.initial_velocity_sigma_vertical_m_per_s),
+            ("lag_s", self.lag_s),
+            ("confirm_window_s", self.confirm_window_s),
+            ("tentative_timeout_s", self.tentative_timeout_s),
+            ("lost_timeout_s", self.lost_timeout_s),
+        ];
+        for (field, v) in non_negative {
+            if !(v.is_finite() && v >= 0.0) {
+                return fail(field, "must be finite and ≥ 0");
+            }
+        }
+        let positive = [
+            ("init_covariance_inflation", self.init_covariance_inflation),
+            ("doa_variance_inflation", self.doa_variance_inflation),
+            ("min_sigma_rad", self.min_sigma_rad),
+            ("min_range_m", self.min_range_m),
+            ("confirm_max_rms_m", self.confirm_max_rms_m),
+            ("lost_max_rms_m", self.lost_max_rms_m),
+            ("trusted_max_rms_m", self.trusted_max_rms_m),
+        ];
+        for (field, v) in positive {
+            if !(v.is_finite() && v > 0.0) {
+                return fail(field, "must be finite and > 0");
+            }
+        }
+        for (field, p) in [
+            ("association_probability", self.association_probability),
+            ("maintenance_probability", self.maintenance_probability),
+        ] {
+            if !(p > 0.0 && p < 1.0) {
+                return fail(field, "must be in (0, 1)");
+            }
+        }
+        if self.association_probability > self.maintenance_probability {
+            return fail("association_probability", "must be ≤ maintenance_probability");
+        }
+        if !(1..=MAX_CONFIRM_UPDATES).contains(&self.confirm_updates) {
+            return fail("confirm_updates", "must be in 1..=16");
+        }
+        if !(1..=self.confirm_updates).contains(&self.confirm_min_robots) {
+            return fail("confirm_min_robots", "must be in 1..=confirm_updates");
+        }
+        if self.max_buffered == 0 {
+            return fail("max_buffered", "must be ≥ 1");
+        }
+        if self.trusted_max_rms_m > self.lost_max_rms_m {
+            return fail("trusted_max_rms_m", "must be ≤ lost_max_rms_m");
+        }
+        Ok(())
+    }
+
+    pub(super) fn process_noise(&self) -> ProcessNoise {
+        ProcessNoise {
+            horizontal_m2_per_s3: self.accel_psd_horizontal_m2_per_s3,
+            vertical_m2_per_s3: self.accel_psd_vertical_m2_per_s3,
+        }
+    }
+
+    pub(super) fn doa_noise(&self) -> DoaNoiseModel {
+        DoaNoiseModel {
+            variance_inflation: self.doa_variance_inflation,
+            min_sigma_rad: self.min_sigma_rad,
+            min_range_m: self.min_range_m,
+        }
+    }
+
+    pub(super) fn lifecycle(&self) -> LifecycleRules {
+        LifecycleRules {
+            confirm_updates: self.confirm_updates,
+            confirm_min_robots: self.confirm_min_robots,
+            confirm_window_ns: secs_to_ns(self.confirm_window_s),
+            confirm_max_rms_m: self.confirm_max_rms_m,
+            tentative_timeout_s: self.tentative_timeout_s,
+            lost_timeout_s: self.lost_timeout_s,
+            lost_max_rms_m: self.lost_max_rms_m,
+        }
+    }
+
+    pub(super) fn lag_ns(&self) -> i64 {
+        secs_to_ns(self.lag_s)
+    }
+}
+
+/// Seconds to nanoseconds, saturating, NaN as 0.
+fn secs_to_ns(s: f64) -> i64 {
+    let ns = (s * 1e9).round();
+    if ns.is_nan() { 0 } else { ns.clamp(i64::MIN as f64, i64::MAX as f64) as i64 }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn defaults_validate_and_toml_parses() {
+        TrackerConfig::default().validate().unwrap();
+        let c: TrackerConfig = toml::from_str("lag_s = 0.3\nconfirm_updates = 4").unwrap();
+        assert_eq!(c.lag_s, 0.3);
+        assert_eq!(c.confirm_updates, 4);
+        assert_eq!(c.lost_timeout_s, 3.0);
+        assert!(toml::from_str::<TrackerConfig>("lag = 0.3").is_err(), "unknown fields are rejected");
+    }
+
+    #[test]
+    fn bad_values_name_their_field() {
+        let bad = TrackerConfig { lag_s: f64::NAN, ..TrackerConfig::default() };
+        assert_eq!(bad.validate().unwrap_err().field, "lag_s");
+        let bad = TrackerConfig { confirm_updates: 17, ..TrackerConfig::default() };
+        assert_eq!(bad.validate().unwrap_err().field, "confirm_updates");
+        let bad = TrackerConfig { association_probability: 0.9995, ..TrackerConfig::default() };
+        assert_eq!(bad.validate().unwrap_err().field, "association_probability");
+    }
+}

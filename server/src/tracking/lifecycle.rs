@@ -1,0 +1,190 @@
+//! Track lifecycle: tentative → confirmed → lost.
+//!
+//! - A track starts **tentative** when it is initialized (from a triangulation).
+//! - It becomes **confirmed** on an accepted DoA update after which the last
+//!   `confirm_updates` accepted updates all fall within `confirm_window`, come
+//!   from at least `confirm_min_robots` distinct robots, *and* the position RMS
+//!   √tr P_pos is at most `confirm_max_rms_m`. Both are required: a small
+//!   covariance alone (an optimistic initialization) is no evidence that the
+//!   robots' DoAs agree on a source, and agreement alone says nothing of how
+//!   well the point is pinned down. Confirmation is a function of the accepted
+//!   update history only, so the fixed-lag replay reproduces it exactly.
+//! - It is **lost** (terminal, until re-initialized) when no DoA has been
+//!   accepted for `tentative_timeout` (tentative) or `lost_timeout` (confirmed),
+//!   or when its position RMS exceeds `lost_max_rms_m` (diverged). Loss is
+//!   decided by [`check_loss`] at the caller's `now`.
+
+use soundmap_proto::Stamp;
+
+/// Largest `confirm_updates` the lifecycle can hold.
+pub const MAX_CONFIRM_UPDATES: usize = 16;
+
+/// State of a track.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum TrackState {
+    /// Initialized, not yet confirmed by enough DoAs: not to be trusted.
+    Tentative,
+    /// Confirmed by DoAs from several robots with a small enough covariance.
+    Confirmed,
+    /// Given up; the estimate is stale. Re-initialize from a new triangulation.
+    Lost(LossReason),
+}
+
+/// Why a track was lost.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum LossReason {
+    /// No DoA accepted for longer than the timeout.
+    Silent {
+        /// Time since the last accepted DoA (or the initialization) (s).
+        silent_s: f64,
+    },
+    /// The position covariance grew too large.
+    Diverged {
+        /// √tr P_pos when it was detected (m).
+        position_rms_m: f64,
+    },
+}
+
+/// The lifecycle thresholds (see the module documentation).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct LifecycleRules {
+    /// Accepted updates needed to confirm, 1..=[`MAX_CONFIRM_UPDATES`].
+    pub confirm_updates: usize,
+    /// Distinct robots among them.
+    pub confirm_min_robots: usize,
+    /// Time span they must fit in (ns).
+    pub confirm_window_ns: i64,
+    /// Largest position RMS at confirmation (m).
+    pub confirm_max_rms_m: f64,
+    /// Silence that loses a tentative track (s).
+    pub tentative_timeout_s: f64,
+    /// Silence that loses a confirmed track (s).
+    pub lost_timeout_s: f64,
+    /// Position RMS that loses any track (m).
+    pub lost_max_rms_m: f64,
+}
+
+/// The replayable part of the lifecycle: recent accepted updates and whether
+/// the track has been confirmed.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Confirmation {
+    recent: [(Stamp, u32); MAX_CONFIRM_UPDATES],
+    len: usize,
+    next: usize,
+    confirmed: bool,
+}
+
+impl Default for Confirmation {
+    fn default() -> Self {
+        Confirmation { recent: [(Stamp::ZERO, 0); MAX_CONFIRM_UPDATES], len: 0, next: 0, confirmed: false }
+    }
+}
+
+impl Confirmation {
+    /// True once confirmed (it stays so).
+    pub fn is_confirmed(&self) -> bool {
+        self.confirmed
+    }
+
+    /// Records an accepted update from `robot` at `stamp`, after which the
+    /// position RMS is `position_rms_m`, and confirms the track if the rules hold.
+    pub fn record(&mut self, stamp: Stamp, robot: u32, position_rms_m: f64, rules: &LifecycleRules) {
+        let m = rules.confirm_updates.clamp(1, MAX_CONFIRM_UPDATES);
+        self.recent[self.next % m] = (stamp, robot);
+        self.next = (self.next + 1) % m;
+        self.len = (self.len + 1).min(m);
+        if self.confirmed || self.len < m || !(position_rms_m <= rules.confirm_max_rms_m) {
+            return;
+        }
+        let recent = &self.recent[..m];
+        let oldest = recent.iter().map(|r| r.0).min().unwrap_or(stamp);
+        if stamp - oldest > rules.confirm_window_ns {
+            return;
+        }
+        let distinct = (0..m).filter(|&i| recent[..i].iter().all(|r| r.1 != recent[i].1)).count();
+        self.confirmed = distinct >= rules.confirm_min_robots;
+    }
+}
+
+/// Whether a track should be lost at `now`: `last_accepted` is the stamp of its
+/// last accepted DoA (or its initialization) and `position_rms_m` its position
+/// RMS predicted to `now`. Divergence is checked first.
+pub fn check_loss(
+    confirmed: bool,
+    now: Stamp,
+    last_accepted: Stamp,
+    position_rms_m: f64,
+    rules: &LifecycleRules,
+) -> Option<LossReason> {
+    if !(position_rms_m <= rules.lost_max_rms_m) {
+        return Some(LossReason::Diverged { position_rms_m });
+    }
+    let silent_s = now.seconds_since(last_accepted);
+    let timeout_s = if confirmed { rules.lost_timeout_s } else { rules.tentative_timeout_s };
+    (silent_s > timeout_s).then_some(LossReason::Silent { silent_s })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    const RULES: LifecycleRules = LifecycleRules {
+        confirm_updates: 4,
+        confirm_min_robots: 2,
+        confirm_window_ns: 1_000_000_000,
+        confirm_max_rms_m: 0.5,
+        tentative_timeout_s: 1.0,
+        lost_timeout_s: 2.0,
+        lost_max_rms_m: 2.0,
+    };
+
+    fn ms(t: i64) -> Stamp {
+        Stamp::from_ns(t * 1_000_000)
+    }
+
+    #[test]
+    fn one_robot_never_confirms() {
+        let mut c = Confirmation::default();
+        for k in 0..20 {
+            c.record(ms(k * 50), 7, 0.1, &RULES);
+        }
+        assert!(!c.is_confirmed());
+    }
+
+    #[test]
+    fn confirms_on_the_mth_update_from_two_robots() {
+        let mut c = Confirmation::default();
+        for k in 0..3 {
+            c.record(ms(k * 100), k as u32 % 2, 0.1, &RULES);
+            assert!(!c.is_confirmed());
+        }
+        c.record(ms(300), 1, 0.1, &RULES);
+        assert!(c.is_confirmed());
+    }
+
+    #[test]
+    fn spread_out_or_uncertain_updates_do_not_confirm() {
+        let mut c = Confirmation::default();
+        for k in 0..8 {
+            c.record(ms(k * 600), k as u32 % 2, 0.1, &RULES);
+        }
+        assert!(!c.is_confirmed(), "4 updates over 1.8 s > 1 s window");
+        let mut c = Confirmation::default();
+        for k in 0..8 {
+            c.record(ms(k * 100), k as u32 % 2, 0.8, &RULES);
+        }
+        assert!(!c.is_confirmed(), "RMS above the confirmation threshold");
+    }
+
+    #[test]
+    fn loss_by_silence_and_divergence() {
+        assert_eq!(check_loss(false, ms(900), ms(0), 0.3, &RULES), None);
+        assert!(matches!(check_loss(false, ms(1100), ms(0), 0.3, &RULES), Some(LossReason::Silent { .. })));
+        assert_eq!(check_loss(true, ms(1100), ms(0), 0.3, &RULES), None);
+        assert!(matches!(check_loss(true, ms(100), ms(0), 2.5, &RULES), Some(LossReason::Diverged { .. })));
+        assert!(matches!(
+            check_loss(true, ms(100), ms(0), f64::NAN, &RULES),
+            Some(LossReason::Diverged { .. })
+        ));
+    }
+}
