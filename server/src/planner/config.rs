@@ -1,0 +1,298 @@
+//! Planner settings (TOML section `[planner]`), their defaults and validation.
+
+use serde::Deserialize;
+
+use super::free_space::{FreeSpaceConfig, polygon_problem};
+
+/// A planner setting that cannot be used, naming the field.
+#[derive(Clone, Debug, PartialEq, thiserror::Error)]
+#[error("planner config: `{field}` {problem}")]
+pub struct ConfigError {
+    /// Dotted field name, e.g. `free_space.obstacles[2]`.
+    pub field: String,
+    /// What is wrong with it.
+    pub problem: String,
+}
+
+/// Settings of the sampling fallback (theory §3.5).
+#[derive(Clone, Debug, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct SamplingConfig {
+    /// Bearing spacing of the polar candidate grid around the source (degrees). Default 5.
+    pub bearing_step_deg: f64,
+    /// Range spacing of the grid (m). Default 0.25.
+    pub range_step_m: f64,
+    /// Score added per metre a robot travels (the score's main term is ln tr J⁻¹). Default 0.05.
+    pub travel_weight_per_m: f64,
+    /// Score added per degree the best pairwise θ lies outside the band. Default 0.05.
+    pub band_penalty_per_deg: f64,
+    /// Two robots: exhaustive search when |C₁|·|C₂| is at most this, else Gauss–Seidel. Default 250 000.
+    pub max_exhaustive_pairs: usize,
+    /// Gauss–Seidel sweeps over the robots (N ≥ 3). Default 8.
+    pub max_sweeps: usize,
+}
+
+impl Default for SamplingConfig {
+    fn default() -> Self {
+        SamplingConfig {
+            bearing_step_deg: 5.0,
+            range_step_m: 0.25,
+            travel_weight_per_m: 0.05,
+            band_penalty_per_deg: 0.05,
+            max_exhaustive_pairs: 250_000,
+            max_sweeps: 8,
+        }
+    }
+}
+
+/// Settings of the [`Planner`](super::Planner). Ranges and separations are
+/// horizontal distances between base centres and the source (m, map xy).
+#[derive(Clone, Debug, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct PlannerConfig {
+    /// Lower edge of the acceptable angle at the source between robots (degrees). Default 40.
+    pub theta_min_deg: f64,
+    /// Upper edge of that band (degrees). Default 140.
+    pub theta_max_deg: f64,
+    /// Re-plan when the GDOP of the current geometry exceeds this. Default 2.5
+    /// (two robots at θ = 40° give 2.31, at 90° 1.58).
+    pub max_gdop: f64,
+    /// Keep-out radius around the source, r_min (m). Default 1.0.
+    pub min_range_m: f64,
+    /// Largest range from the source, r_max (m). Default 5.0.
+    pub max_range_m: f64,
+    /// Range of the ideal spots (m), in [r_min, r_max]; information grows as 1/r². Default 2.0.
+    pub preferred_range_m: f64,
+    /// Smallest distance between two robots' goals (m). Default 0.8.
+    pub min_separation_m: f64,
+    /// Largest move per planning cycle (m); the cycle's step is
+    /// min(this, robot speed × planning period). Default 1.0.
+    pub max_step_m: f64,
+    /// Robot cruise speed (m/s). Default 0.5.
+    pub robot_speed_mps: f64,
+    /// Shortest time between two re-taskings (s). Default 2.0.
+    pub planning_period_s: f64,
+    /// Robot footprint radius (m). Default 0.25.
+    pub robot_radius_m: f64,
+    /// Extra margin to walls and obstacles beyond the radius (m). Default 0.1.
+    pub clearance_m: f64,
+    /// Half-width of the tolerance wedge around each target bearing, δ (degrees);
+    /// the det J ratio inside stays ≥ cos²2δ. Default 15.
+    pub wedge_half_width_deg: f64,
+    /// Weight λ_g of ‖p − g‖² against travel ‖p − p⁰‖² in the per-cycle QP; an
+    /// unconstrained robot moves λ_g/(1 + λ_g) of the way. Default 10.
+    pub goal_weight: f64,
+    /// Re-plan a good geometry when √tr J⁻¹ would shrink by at least this fraction. Default 0.2.
+    pub improvement_threshold: f64,
+    /// Once re-planning for improvement, continue until the predicted gain is below this. Default 0.1.
+    pub improvement_release: f64,
+    /// θ must come this far inside the band to end a θ-triggered correction (degrees). Default 5.
+    pub theta_hysteresis_deg: f64,
+    /// GDOP must fall below max_gdop × (1 − this) to end a GDOP-triggered correction. Default 0.1.
+    pub gdop_hysteresis: f64,
+    /// Robots with goals keep them until the source has moved this far from
+    /// where it was planned for (m), unless a goal becomes infeasible. Default 0.5.
+    pub follow_distance_m: f64,
+    /// The source is predicted this far ahead with its velocity (s). Default 1.0.
+    pub source_lead_s: f64,
+    /// No planning around a source whose √tr P exceeds this (m). Default 3.0,
+    /// which still lets the planner fix the paper's θ ≈ 10° geometry at 3 m (≈ 1.4 m).
+    pub max_source_rms_m: f64,
+    /// A waypoint closer than this to the robot is not sent (m). Default 0.1.
+    pub goal_tolerance_m: f64,
+    /// Rotation grid of the target pattern (degrees). Default 5.
+    pub pattern_rotation_step_deg: f64,
+    /// Cost per metre of arc between a robot's new and previous target bearing,
+    /// against metres of travel; keeps the pattern from flipping. Default 0.5.
+    pub pattern_switch_weight: f64,
+    /// Cost, in metres of travel, of a target spot that is not free. Default 3.0.
+    pub blocked_spot_penalty_m: f64,
+    /// Cost, in metres of travel, per unit of −ln det J of the pattern (3D). Default 1.0.
+    pub pattern_info_weight_m: f64,
+    /// Sampling fallback.
+    pub sampling: SamplingConfig,
+    /// Room and obstacles.
+    pub free_space: FreeSpaceConfig,
+}
+
+impl Default for PlannerConfig {
+    fn default() -> Self {
+        PlannerConfig {
+            theta_min_deg: 40.0,
+            theta_max_deg: 140.0,
+            max_gdop: 2.5,
+            min_range_m: 1.0,
+            max_range_m: 5.0,
+            preferred_range_m: 2.0,
+            min_separation_m: 0.8,
+            max_step_m: 1.0,
+            robot_speed_mps: 0.5,
+            planning_period_s: 2.0,
+            robot_radius_m: 0.25,
+            clearance_m: 0.1,
+            wedge_half_width_deg: 15.0,
+            goal_weight: 10.0,
+            improvement_threshold: 0.2,
+            improvement_release: 0.1,
+            theta_hysteresis_deg: 5.0,
+            gdop_hysteresis: 0.1,
+            follow_distance_m: 0.5,
+            source_lead_s: 1.0,
+            max_source_rms_m: 3.0,
+            goal_tolerance_m: 0.1,
+            pattern_rotation_step_deg: 5.0,
+            pattern_switch_weight: 0.5,
+            blocked_spot_penalty_m: 3.0,
+            pattern_info_weight_m: 1.0,
+            sampling: SamplingConfig::default(),
+            free_space: FreeSpaceConfig::default(),
+        }
+    }
+}
+
+impl PlannerConfig {
+    /// The step a robot may take in one cycle (m).
+    pub fn step_m(&self) -> f64 {
+        self.max_step_m.min(self.robot_speed_mps * self.planning_period_s)
+    }
+
+    /// Robot radius plus margin: distance kept from walls and obstacles (m).
+    pub fn wall_clearance_m(&self) -> f64 {
+        self.robot_radius_m + self.clearance_m
+    }
+
+    /// Checks every field; the error names the first bad one.
+    pub fn validate(&self) -> Result<(), ConfigError> {
+        let err = |field: &str, problem: String| Err(ConfigError { field: field.into(), problem });
+        let positive = [
+            ("max_gdop", self.max_gdop),
+            ("min_range_m", self.min_range_m),
+            ("max_range_m", self.max_range_m),
+            ("preferred_range_m", self.preferred_range_m),
+            ("max_step_m", self.max_step_m),
+            ("robot_speed_mps", self.robot_speed_mps),
+            ("planning_period_s", self.planning_period_s),
+            ("wedge_half_width_deg", self.wedge_half_width_deg),
+            ("goal_weight", self.goal_weight),
+            ("max_source_rms_m", self.max_source_rms_m),
+            ("pattern_rotation_step_deg", self.pattern_rotation_step_deg),
+            ("sampling.bearing_step_deg", self.sampling.bearing_step_deg),
+            ("sampling.range_step_m", self.sampling.range_step_m),
+        ];
+        for (field, v) in positive {
+            if !(v.is_finite() && v > 0.0) {
+                return err(field, format!("must be finite and > 0, is {v}"));
+            }
+        }
+        let non_negative = [
+            ("min_separation_m", self.min_separation_m),
+            ("robot_radius_m", self.robot_radius_m),
+            ("clearance_m", self.clearance_m),
+            ("improvement_threshold", self.improvement_threshold),
+            ("improvement_release", self.improvement_release),
+            ("theta_hysteresis_deg", self.theta_hysteresis_deg),
+            ("gdop_hysteresis", self.gdop_hysteresis),
+            ("follow_distance_m", self.follow_distance_m),
+            ("source_lead_s", self.source_lead_s),
+            ("goal_tolerance_m", self.goal_tolerance_m),
+            ("pattern_switch_weight", self.pattern_switch_weight),
+            ("blocked_spot_penalty_m", self.blocked_spot_penalty_m),
+            ("pattern_info_weight_m", self.pattern_info_weight_m),
+            ("sampling.travel_weight_per_m", self.sampling.travel_weight_per_m),
+            ("sampling.band_penalty_per_deg", self.sampling.band_penalty_per_deg),
+        ];
+        for (field, v) in non_negative {
+            if !(v.is_finite() && v >= 0.0) {
+                return err(field, format!("must be finite and ≥ 0, is {v}"));
+            }
+        }
+        if !(self.theta_min_deg.is_finite() && self.theta_min_deg > 0.0) {
+            return err("theta_min_deg", format!("must be in (0°, 180°), is {}", self.theta_min_deg));
+        }
+        if !(self.theta_max_deg.is_finite() && self.theta_max_deg < 180.0) {
+            return err("theta_max_deg", format!("must be in (0°, 180°), is {}", self.theta_max_deg));
+        }
+        if self.theta_min_deg >= self.theta_max_deg {
+            return err(
+                "theta_min_deg",
+                format!("must be below theta_max_deg ({} ≥ {})", self.theta_min_deg, self.theta_max_deg),
+            );
+        }
+        if self.theta_min_deg + self.theta_hysteresis_deg >= self.theta_max_deg - self.theta_hysteresis_deg {
+            return err("theta_hysteresis_deg", "leaves no band (min + h ≥ max − h)".into());
+        }
+        if self.min_range_m >= self.max_range_m {
+            return err(
+                "min_range_m",
+                format!("must be below max_range_m ({} ≥ {})", self.min_range_m, self.max_range_m),
+            );
+        }
+        if !(self.min_range_m..=self.max_range_m).contains(&self.preferred_range_m) {
+            return err(
+                "preferred_range_m",
+                format!("must lie in [min_range_m, max_range_m], is {}", self.preferred_range_m),
+            );
+        }
+        if self.wedge_half_width_deg >= 45.0 {
+            return err(
+                "wedge_half_width_deg",
+                format!("must be below 45° (wedges up to 90° wide), is {}", self.wedge_half_width_deg),
+            );
+        }
+        if self.improvement_threshold >= 1.0 {
+            return err("improvement_threshold", "is a fraction and must be below 1".into());
+        }
+        if self.improvement_release > self.improvement_threshold {
+            return err("improvement_release", "must not exceed improvement_threshold".into());
+        }
+        if self.gdop_hysteresis >= 1.0 {
+            return err("gdop_hysteresis", "is a fraction and must be below 1".into());
+        }
+        if self.sampling.max_sweeps == 0 {
+            return err("sampling.max_sweeps", "must be ≥ 1".into());
+        }
+        if !self.free_space.room.is_empty()
+            && let Some(p) = polygon_problem(&self.free_space.room)
+        {
+            return err("free_space.room", p);
+        }
+        for (k, o) in self.free_space.obstacles.iter().enumerate() {
+            if let Some(p) = polygon_problem(o) {
+                return err(&format!("free_space.obstacles[{k}]"), p);
+            }
+        }
+        Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn defaults_are_valid() {
+        PlannerConfig::default().validate().unwrap();
+        assert!((PlannerConfig::default().step_m() - 1.0).abs() < 1e-12);
+    }
+
+    #[test]
+    fn errors_name_the_field() {
+        let field = |c: PlannerConfig| c.validate().unwrap_err().field;
+        assert_eq!(field(PlannerConfig { theta_min_deg: 150.0, ..Default::default() }), "theta_min_deg");
+        assert_eq!(field(PlannerConfig { min_range_m: -1.0, ..Default::default() }), "min_range_m");
+        assert_eq!(field(PlannerConfig { robot_radius_m: -0.1, ..Default::default() }), "robot_radius_m");
+        assert_eq!(field(PlannerConfig { max_range_m: 0.5, ..Default::default() }), "min_range_m");
+        assert_eq!(
+            field(PlannerConfig { preferred_range_m: 9.0, ..Default::default() }),
+            "preferred_range_m"
+        );
+        let mut c = PlannerConfig::default();
+        c.free_space.room = vec![[0.0, 0.0], [1.0, 1.0], [1.0, 0.0], [0.0, 1.0]];
+        assert_eq!(field(c.clone()), "free_space.room");
+        c.free_space.room = vec![];
+        c.free_space.obstacles = vec![vec![[0.0, 0.0], [1.0, 0.0], [1.0, 1.0]], vec![]];
+        assert_eq!(field(c), "free_space.obstacles[1]");
+        let e = PlannerConfig { theta_max_deg: 30.0, ..Default::default() }.validate().unwrap_err();
+        assert!(e.to_string().contains("theta_min_deg") && e.to_string().contains("theta_max_deg"), "{e}");
+    }
+}

@@ -1,0 +1,180 @@
+//! When to re-task the robots (theory §3.5, step 6): triggers with hysteresis
+//! and the memory of the last plan.
+//!
+//! - A correction *starts* when θ leaves the band, the GDOP exceeds its
+//!   threshold, or the predicted reduction of √tr J⁻¹ reaches the improvement
+//!   threshold (~20 %).
+//! - Once started it *continues* until θ is `theta_hysteresis_deg` inside the
+//!   band, the GDOP is `gdop_hysteresis` below its threshold and the predicted
+//!   gain is under `improvement_release`: a geometry hovering at a threshold
+//!   does not toggle the robots.
+//! - Robots driving to goals keep them while the goals stay valid and the
+//!   source has moved less than `follow_distance_m` from where it was when they
+//!   were planned; the target pattern is sticky (see [`bearings`](super::bearings)).
+//! - Re-tasking happens at most once per planning period.
+
+use nalgebra::Point3;
+use soundmap_proto::{RepositionReason, RobotId, Stamp};
+
+use super::config::PlannerConfig;
+use super::outcome::HoldReason;
+
+/// What the planner remembers between cycles.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub(crate) struct Memory {
+    /// When goals were last issued.
+    pub last_plan_at: Option<Stamp>,
+    /// The (predicted) source position they were planned for.
+    pub planned_source: Option<Point3<f64>>,
+    /// The correction in progress, if any.
+    pub engaged: Option<RepositionReason>,
+    /// Target bearing per robot of the last plan (rad).
+    pub bearings: Vec<(RobotId, f64)>,
+}
+
+impl Memory {
+    /// Seconds to wait before re-tasking is allowed, if any.
+    pub fn wait_s(&self, now: Stamp, period_s: f64) -> Option<f64> {
+        let since = now.seconds_since(self.last_plan_at?);
+        (since >= 0.0 && since < period_s).then(|| period_s - since)
+    }
+
+    /// Previous target bearing of robot `id`.
+    pub fn bearing_of(&self, id: &RobotId) -> Option<f64> {
+        self.bearings.iter().find(|(r, _)| r == id).map(|b| b.1)
+    }
+}
+
+/// The facts a decision is made on.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub(crate) struct Situation {
+    /// Best pairwise θ now (degrees).
+    pub theta_deg: f64,
+    /// GDOP now.
+    pub gdop: f64,
+    /// Predicted relative reduction of √tr J⁻¹ at the target pattern (≤ 1).
+    pub improvement: f64,
+    /// Some robot is driving to a goal.
+    pub busy: bool,
+    /// Every active goal still meets the constraints for the current source.
+    pub goals_valid: bool,
+    /// Horizontal distance the source moved since the last plan (m; ∞ when none).
+    pub source_moved_m: f64,
+}
+
+/// Re-plan (and why) or hold.
+#[derive(Clone, Debug, PartialEq)]
+pub(crate) enum Decision {
+    /// Plan new goals.
+    Replan(RepositionReason),
+    /// Leave the robots be.
+    Hold(HoldReason),
+}
+
+/// The trigger that holds, given the correction in progress.
+pub(crate) fn trigger(
+    cfg: &PlannerConfig,
+    engaged: Option<RepositionReason>,
+    s: &Situation,
+) -> Option<RepositionReason> {
+    let h = if engaged == Some(RepositionReason::ThetaOutOfBand) { cfg.theta_hysteresis_deg } else { 0.0 };
+    if !(s.theta_deg >= cfg.theta_min_deg + h && s.theta_deg <= cfg.theta_max_deg - h) {
+        return Some(RepositionReason::ThetaOutOfBand);
+    }
+    let g = if engaged == Some(RepositionReason::GdopHigh) {
+        cfg.max_gdop * (1.0 - cfg.gdop_hysteresis)
+    } else {
+        cfg.max_gdop
+    };
+    if !(s.gdop <= g) {
+        return Some(RepositionReason::GdopHigh);
+    }
+    let t = if engaged.is_some() { cfg.improvement_release } else { cfg.improvement_threshold };
+    // A zero threshold means "always improve": re-plan on any positive gain.
+    if s.improvement >= t && s.improvement > 0.0 {
+        return Some(RepositionReason::Improvement);
+    }
+    None
+}
+
+/// Decides this cycle.
+pub(crate) fn decide(cfg: &PlannerConfig, engaged: Option<RepositionReason>, s: &Situation) -> Decision {
+    if s.busy {
+        if s.goals_valid && s.source_moved_m < cfg.follow_distance_m {
+            return Decision::Hold(HoldReason::GoalsInProgress);
+        }
+        return Decision::Replan(trigger(cfg, engaged, s).unwrap_or(RepositionReason::FollowSource));
+    }
+    match trigger(cfg, engaged, s) {
+        Some(r) => Decision::Replan(r),
+        None => Decision::Hold(HoldReason::GeometryGood {
+            theta_deg: s.theta_deg,
+            gdop: s.gdop,
+            improvement: s.improvement,
+        }),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn situation(theta_deg: f64, gdop: f64, improvement: f64) -> Situation {
+        Situation { theta_deg, gdop, improvement, busy: false, goals_valid: true, source_moved_m: 0.0 }
+    }
+
+    #[test]
+    fn band_edges_have_hysteresis() {
+        let cfg = PlannerConfig::default();
+        let s = situation(42.0, 2.0, 0.15);
+        // Idle: 42° is in band and 15 % is below 20 %.
+        assert_eq!(trigger(&cfg, None, &s), None);
+        // During a θ correction, 42° is not yet 5° inside the band.
+        assert_eq!(
+            trigger(&cfg, Some(RepositionReason::ThetaOutOfBand), &s),
+            Some(RepositionReason::ThetaOutOfBand)
+        );
+        // Past 45°, the correction continues while the gain exceeds the release (10 %).
+        let s = situation(50.0, 2.0, 0.15);
+        assert_eq!(
+            trigger(&cfg, Some(RepositionReason::ThetaOutOfBand), &s),
+            Some(RepositionReason::Improvement)
+        );
+        let s = situation(50.0, 2.0, 0.05);
+        assert_eq!(trigger(&cfg, Some(RepositionReason::Improvement), &s), None);
+        // GDOP: 2.4 ends an idle check but not a GDOP correction (threshold 2.25 then).
+        let s = situation(90.0, 2.4, 0.0);
+        assert_eq!(trigger(&cfg, None, &s), None);
+        assert_eq!(trigger(&cfg, Some(RepositionReason::GdopHigh), &s), Some(RepositionReason::GdopHigh));
+        assert_eq!(
+            trigger(&cfg, None, &situation(90.0, f64::INFINITY, 0.0)),
+            Some(RepositionReason::GdopHigh)
+        );
+        assert_eq!(
+            trigger(&cfg, None, &situation(f64::NAN, 1.0, 0.0)),
+            Some(RepositionReason::ThetaOutOfBand)
+        );
+    }
+
+    #[test]
+    fn busy_robots_keep_valid_goals_until_the_source_moves() {
+        let cfg = PlannerConfig::default();
+        let mut s = situation(20.0, 5.0, 0.5);
+        s.busy = true;
+        assert_eq!(decide(&cfg, None, &s), Decision::Hold(HoldReason::GoalsInProgress));
+        s.source_moved_m = 0.6;
+        assert_eq!(decide(&cfg, None, &s), Decision::Replan(RepositionReason::ThetaOutOfBand));
+        let mut s = situation(90.0, 1.6, 0.0);
+        s.busy = true;
+        s.goals_valid = false;
+        assert_eq!(decide(&cfg, None, &s), Decision::Replan(RepositionReason::FollowSource));
+    }
+
+    #[test]
+    fn replanning_is_rate_limited() {
+        let m = Memory { last_plan_at: Some(Stamp::from_secs_f64(10.0)), ..Default::default() };
+        assert!((m.wait_s(Stamp::from_secs_f64(10.5), 2.0).unwrap() - 1.5).abs() < 1e-9);
+        assert_eq!(m.wait_s(Stamp::from_secs_f64(12.0), 2.0), None);
+        assert_eq!(Memory::default().wait_s(Stamp::ZERO, 2.0), None);
+    }
+}

@@ -1,0 +1,81 @@
+//! What the planner is given each cycle: the source estimate and the robots.
+
+use nalgebra::{Isometry3, Matrix3, Point2, Point3, Vector3};
+use soundmap_proto::RobotId;
+
+/// The tracked source, map frame.
+#[derive(Clone, Debug, PartialEq)]
+pub struct SourceEstimate {
+    /// Estimated position (m).
+    pub position_in_map: Point3<f64>,
+    /// Position covariance (m²).
+    pub covariance_m2: Matrix3<f64>,
+    /// Estimated velocity (m/s), when tracked.
+    pub velocity_in_map: Option<Vector3<f64>>,
+}
+
+impl SourceEstimate {
+    /// A source with an isotropic position σ (m) and no velocity.
+    pub fn at(position_in_map: Point3<f64>, sigma_m: f64) -> Self {
+        SourceEstimate {
+            position_in_map,
+            covariance_m2: Matrix3::identity() * sigma_m * sigma_m,
+            velocity_in_map: None,
+        }
+    }
+
+    /// √tr P (m): RMS 3D position uncertainty.
+    pub fn rms_m(&self) -> f64 {
+        self.covariance_m2.trace().max(0.0).sqrt()
+    }
+}
+
+/// One robot as the planner sees it.
+#[derive(Clone, Debug, PartialEq)]
+pub struct RobotState {
+    /// Identity (goals are matched to robots across cycles by id).
+    pub id: RobotId,
+    /// Current pose of the base, map frame.
+    pub map_from_base: Isometry3<f64>,
+    /// Pose of the microphone array on the base (configuration).
+    pub base_from_array: Isometry3<f64>,
+    /// 1-σ angular noise of its DoAs per tangent axis (rad).
+    pub sigma_rad: f64,
+    /// The goal it is driving to, when busy with a previous command.
+    pub active_goal: Option<Isometry3<f64>>,
+}
+
+impl RobotState {
+    /// Base position in the map's xy plane (m).
+    pub fn base_xy(&self) -> Point2<f64> {
+        let t = self.map_from_base.translation.vector;
+        Point2::new(t.x, t.y)
+    }
+
+    /// Array centre in the map frame at the current pose (m).
+    pub fn array_in_map(&self) -> Point3<f64> {
+        (self.map_from_base * self.base_from_array) * Point3::origin()
+    }
+
+    /// Whether every number is finite and σ is positive.
+    pub(crate) fn is_valid(&self) -> bool {
+        let iso_ok = |i: &Isometry3<f64>| {
+            i.translation.vector.iter().all(|v| v.is_finite())
+                && i.rotation.coords.iter().all(|v| v.is_finite())
+        };
+        iso_ok(&self.map_from_base)
+            && iso_ok(&self.base_from_array)
+            && self.active_goal.as_ref().is_none_or(iso_ok)
+            && self.sigma_rad.is_finite()
+            && self.sigma_rad > 0.0
+    }
+}
+
+/// Everything one planning cycle needs besides the configuration.
+#[derive(Clone, Debug, PartialEq)]
+pub struct PlannerInput {
+    /// The source to localize.
+    pub source: SourceEstimate,
+    /// The robots; [`Goal::robot`](super::Goal::robot) indexes this list.
+    pub robots: Vec<RobotState>,
+}

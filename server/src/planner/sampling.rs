@@ -1,0 +1,285 @@
+//! Sampling fallback (theory §3.5), used when the convex problem is
+//! infeasible or fails.
+//!
+//! Candidates per robot: a polar grid around the source (bearing and range
+//! steps from [`SamplingConfig`]) plus the robot's own position and this
+//! cycle's heading point, kept when free, within one step and inside the
+//! cycle's range bounds. A tuple of spots is scored by
+//!
+//! ```text
+//! ln tr J⁻¹  +  w_travel Σ‖qᵢ − pᵢ⁰‖  +  w_band · (degrees the best pairwise θ lies outside the band)
+//! ```
+//!
+//! with J the 3D Fisher information of the arrays at the spots (facing the
+//! source). Separations are hard: a tuple that violates one is rejected.
+//! Two robots: exhaustive over all pairs (up to a cap); more: Gauss–Seidel,
+//! one robot at a time with the others held (Zhou & Roumeliotis, [13]).
+
+use nalgebra::{Isometry3, Matrix3, Point2, Point3, Vector3};
+
+use super::config::SamplingConfig;
+use super::cycle::{Separation, polar};
+use super::free_space::FreeSpace;
+use super::pose::sensor_at;
+use crate::uncertainty::fisher_information;
+
+/// One robot's part of the search.
+#[derive(Clone, Debug, PartialEq)]
+pub(crate) struct SampleRobot {
+    /// Current base position (m, map xy).
+    pub p0: Point2<f64>,
+    /// Array on the base.
+    pub base_from_array: Isometry3<f64>,
+    /// Angular σ (rad).
+    pub sigma_rad: f64,
+    /// Range bounds this cycle (m).
+    pub range: (f64, f64),
+    /// Largest move (m).
+    pub step: f64,
+    /// This cycle's heading point, offered as a candidate.
+    pub heading: Option<Point2<f64>>,
+}
+
+/// What the search found.
+#[derive(Clone, Debug, PartialEq)]
+pub(crate) enum SampleOutcome {
+    /// Spots per robot.
+    Found(Vec<Point2<f64>>),
+    /// Robot `.0` has no candidate spot at all.
+    NoCandidates(usize, String),
+    /// Candidates exist but no tuple keeps every separation.
+    NoJoint,
+}
+
+struct Candidate {
+    spot: Point2<f64>,
+    fisher: Matrix3<f64>,
+    /// Unit vector from the source to the array.
+    dir: Vector3<f64>,
+    travel: f64,
+}
+
+/// Runs the search around `source`.
+pub(crate) fn search(
+    source: &Point3<f64>,
+    robots: &[SampleRobot],
+    separations: &[Separation],
+    free: &FreeSpace,
+    band_deg: (f64, f64),
+    cfg: &SamplingConfig,
+) -> SampleOutcome {
+    let centre = Point2::new(source.x, source.y);
+    let mut cands: Vec<Vec<Candidate>> = Vec::with_capacity(robots.len());
+    for (i, r) in robots.iter().enumerate() {
+        let c = candidates(source, &centre, r, free, cfg);
+        if c.is_empty() {
+            return SampleOutcome::NoCandidates(
+                i,
+                format!(
+                    "no free spot within its {:.2} m step at {:.2}–{:.2} m from the source",
+                    r.step, r.range.0, r.range.1
+                ),
+            );
+        }
+        cands.push(c);
+    }
+    let scorer = Scorer { cands: &cands, separations, band_deg, cfg };
+    let picks = if robots.len() == 2 && cands[0].len() * cands[1].len() <= cfg.max_exhaustive_pairs {
+        scorer.exhaustive_pair()
+    } else {
+        scorer.gauss_seidel(robots)
+    };
+    match picks {
+        Some(p) if scorer.separation_violation(&p) == 0.0 => {
+            SampleOutcome::Found(p.iter().enumerate().map(|(i, &k)| cands[i][k].spot).collect())
+        }
+        _ => SampleOutcome::NoJoint,
+    }
+}
+
+fn candidates(
+    source: &Point3<f64>,
+    centre: &Point2<f64>,
+    r: &SampleRobot,
+    free: &FreeSpace,
+    cfg: &SamplingConfig,
+) -> Vec<Candidate> {
+    let (lo, hi) = r.range;
+    let reach = r.step - 1e-9;
+    let n_b = (360.0 / cfg.bearing_step_deg).round().max(1.0) as usize;
+    let n_r = ((hi - lo) / cfg.range_step_m).ceil().max(1.0) as usize;
+    let mut spots: Vec<Point2<f64>> = Vec::new();
+    for a in 0..n_b {
+        let phi = (a as f64 * 360.0 / n_b as f64).to_radians();
+        for k in 0..=n_r {
+            spots.push(polar(centre, phi, lo + (hi - lo) * k as f64 / n_r as f64));
+        }
+    }
+    spots.push(r.p0);
+    spots.extend(r.heading);
+    spots
+        .into_iter()
+        .filter(|q| {
+            let rho = (q - centre).norm();
+            (q - r.p0).norm() <= reach && rho >= lo && rho <= hi && free.is_free(q)
+        })
+        .map(|spot| {
+            let s = sensor_at(&spot, source, &r.base_from_array, r.sigma_rad);
+            let d = s.origin - source;
+            Candidate {
+                spot,
+                fisher: fisher_information(&[s], source),
+                dir: if d.norm() > 0.0 { d.normalize() } else { Vector3::x() },
+                travel: (spot - r.p0).norm(),
+            }
+        })
+        .collect()
+}
+
+struct Scorer<'a> {
+    cands: &'a [Vec<Candidate>],
+    separations: &'a [Separation],
+    band_deg: (f64, f64),
+    cfg: &'a SamplingConfig,
+}
+
+impl Scorer<'_> {
+    /// Σ of separation shortfalls (m) of a tuple.
+    fn separation_violation(&self, picks: &[usize]) -> f64 {
+        self.separations
+            .iter()
+            .map(|s| {
+                let d = (self.cands[s.i][picks[s.i]].spot - self.cands[s.j][picks[s.j]].spot).norm();
+                (s.min_m - d).max(0.0)
+            })
+            .sum()
+    }
+
+    fn score(&self, picks: &[usize]) -> f64 {
+        let mut j = Matrix3::zeros();
+        let mut travel = 0.0;
+        for (i, &k) in picks.iter().enumerate() {
+            j += self.cands[i][k].fisher;
+            travel += self.cands[i][k].travel;
+        }
+        let info = match j.try_inverse() {
+            Some(inv) if inv.trace() > 0.0 => inv.trace().ln(),
+            _ => 1e6,
+        };
+        // Best pair: the |cos θ| closest to 0.
+        let mut best_cos = 1.0f64;
+        for a in 0..picks.len() {
+            for b in (a + 1)..picks.len() {
+                let c = self.cands[a][picks[a]].dir.dot(&self.cands[b][picks[b]].dir);
+                if c.abs() < best_cos.abs() {
+                    best_cos = c;
+                }
+            }
+        }
+        let theta = best_cos.clamp(-1.0, 1.0).acos().to_degrees();
+        let outside = (self.band_deg.0 - theta).max(theta - self.band_deg.1).max(0.0);
+        info + self.cfg.travel_weight_per_m * travel
+            + self.cfg.band_penalty_per_deg * outside
+            + 1e3 * self.separation_violation(picks)
+    }
+
+    fn exhaustive_pair(&self) -> Option<Vec<usize>> {
+        let mut best: Option<(f64, Vec<usize>)> = None;
+        for a in 0..self.cands[0].len() {
+            for b in 0..self.cands[1].len() {
+                let picks = [a, b];
+                if self.separation_violation(&picks) > 0.0 {
+                    continue;
+                }
+                let s = self.score(&picks);
+                if best.as_ref().is_none_or(|x| s < x.0) {
+                    best = Some((s, picks.to_vec()));
+                }
+            }
+        }
+        best.map(|b| b.1)
+    }
+
+    fn gauss_seidel(&self, robots: &[SampleRobot]) -> Option<Vec<usize>> {
+        // Start at each robot's candidate nearest its heading point (or itself).
+        let mut picks: Vec<usize> = robots
+            .iter()
+            .zip(self.cands)
+            .map(|(r, c)| {
+                let want = r.heading.unwrap_or(r.p0);
+                (0..c.len()).min_by(|&a, &b| (c[a].spot - want).norm().total_cmp(&(c[b].spot - want).norm()))
+            })
+            .collect::<Option<_>>()?;
+        let mut current = self.score(&picks);
+        for _ in 0..self.cfg.max_sweeps {
+            let mut changed = false;
+            for i in 0..picks.len() {
+                let keep = picks[i];
+                let mut best = (current, keep);
+                for k in 0..self.cands[i].len() {
+                    picks[i] = k;
+                    let s = self.score(&picks);
+                    if s < best.0 - 1e-12 {
+                        best = (s, k);
+                    }
+                }
+                picks[i] = best.1;
+                if best.1 != keep {
+                    changed = true;
+                    current = best.0;
+                }
+            }
+            if !changed {
+                break;
+            }
+        }
+        Some(picks)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::planner::free_space::FreeSpaceConfig;
+    use crate::uncertainty::angle_at_deg;
+
+    fn robot(x: f64, y: f64, step: f64) -> SampleRobot {
+        SampleRobot {
+            p0: Point2::new(x, y),
+            base_from_array: Isometry3::identity(),
+            sigma_rad: 0.05,
+            range: (1.0, 5.0),
+            step,
+            heading: None,
+        }
+    }
+
+    #[test]
+    fn two_robots_without_step_limit_reach_ninety_degrees() {
+        let free = FreeSpace::new(&FreeSpaceConfig::default(), 0.3);
+        let src = Point3::origin();
+        let robots = [robot(3.0, 0.25, 10.0), robot(3.0, -0.25, 10.0)];
+        let SampleOutcome::Found(p) =
+            search(&src, &robots, &[], &free, (40.0, 140.0), &SamplingConfig::default())
+        else {
+            panic!()
+        };
+        let theta = angle_at_deg(&src, &Point3::new(p[0].x, p[0].y, 0.0), &Point3::new(p[1].x, p[1].y, 0.0));
+        assert!((theta - 90.0).abs() <= 5.0, "θ {theta}");
+    }
+
+    #[test]
+    fn a_robot_boxed_in_has_no_candidates() {
+        // A tiny room around the robots, 3 m from the source, but ranges must be ≤ 2 m.
+        let cfg = FreeSpaceConfig {
+            room: vec![[2.5, -0.5], [3.5, -0.5], [3.5, 0.5], [2.5, 0.5]],
+            obstacles: vec![],
+        };
+        let free = FreeSpace::new(&cfg, 0.4);
+        let mut r = robot(3.0, 0.0, 1.0);
+        r.range = (1.0, 2.0);
+        let robots = [r.clone(), r];
+        let out = search(&Point3::origin(), &robots, &[], &free, (40.0, 140.0), &SamplingConfig::default());
+        assert!(matches!(out, SampleOutcome::NoCandidates(0, _)), "{out:?}");
+    }
+}
