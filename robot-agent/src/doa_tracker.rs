@@ -1,1 +1,417 @@
-//! (in progress)
+//! Tracking of directions of arrival on the sphere: ids, activity and honest
+//! angular uncertainty.
+//!
+//! Each track is a constant-velocity Kalman filter on the sphere
+//! ([`sphere_kf`]). Births do not look at absolute energy (ODAS's stock model
+//! never tracks a clean 20 dB source because its energy model expects other
+//! levels): they look at what separates a source from noise under PHAT,
+//! whatever the level:
+//! - *coherence*: a potential's `energy` is its PHAT coherence (1 for a
+//!   noise-free plane wave, ≈ 0 for incoherent noise); a birth needs at least
+//!   [`TrackerConfig::birth_min_coherence`], raised to the array's
+//!   diffuse-noise floor plus a margin (diffuse noise is coherent between
+//!   close microphones and peaks, e.g., at the zenith of a planar array);
+//! - *consistency*: the peak must come back within
+//!   [`TrackerConfig::birth_gate_deg`] of its previous position in
+//!   `birth_min_hits` of `birth_window_frames` consecutive frames. Noise peaks
+//!   wander; a source's stay put (or move smoothly).
+//!
+//! Candidates that pass get an id (monotonic, never reused) as a tentative
+//! track (`confirmed = false`), confirmed after `confirm_hits` more
+//! associated frames. A track dies after `max_coast_s` without a detection.
+//!
+//! Uncertainty: the measurement variance of each track is learnt from its
+//! innovations (so it follows the SNR and the array), inflated for the
+//! overlap of consecutive frames, and the reported σ is the filter's
+//! per-axis angular standard deviation.
+
+pub mod sphere_kf;
+
+use nalgebra::{Unit, Vector3};
+
+use crate::error::AgentError;
+use crate::srp::PotentialSource;
+use sphere_kf::SphereKf;
+
+/// Largest accepted [`TrackerConfig::max_tracks`].
+pub const MAX_TRACKS: usize = 64;
+
+/// One tracked direction.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct TrackedDirection {
+    /// Stable id, monotonic over the tracker's life, never reused.
+    pub track_id: u64,
+    /// Filtered direction, unit vector, array frame.
+    pub direction: Unit<Vector3<f64>>,
+    /// How active the source is, in [0, 1] (smoothed detection rate).
+    pub activity: f64,
+    /// 1-σ angular uncertainty per tangent axis, radians.
+    pub angular_sigma_rad: f64,
+    /// Whether the track passed confirmation (tentative tracks are `false`).
+    pub confirmed: bool,
+}
+
+/// Tracker settings.
+#[derive(Clone, Debug, PartialEq, serde::Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct TrackerConfig {
+    /// Lowest PHAT coherence of a potential that may start a track.
+    pub birth_min_coherence: f64,
+    /// Margin above the array's diffuse-noise coherence floor for births.
+    pub diffuse_margin: f64,
+    /// Frames over which a birth candidate collects its hits.
+    pub birth_window_frames: u32,
+    /// Hits a candidate needs within its window to become a track.
+    pub birth_min_hits: u32,
+    /// Largest angle between consecutive hits of a candidate, degrees.
+    pub birth_gate_deg: f64,
+    /// Associated frames after birth needed to confirm a track.
+    pub confirm_hits: u32,
+    /// Frames after birth within which a tentative track must confirm.
+    pub confirm_window_frames: u32,
+    /// Lowest coherence of a potential that may update an existing track.
+    pub update_min_coherence: f64,
+    /// Association gate, squared Mahalanobis distance (2 dof; 13.8 ≈ 99.9 %).
+    pub gate_chi2: f64,
+    /// Association gate never narrower than this, degrees.
+    pub min_gate_deg: f64,
+    /// White angular-acceleration noise, rad²/s³ per axis.
+    pub acceleration_noise: f64,
+    /// Measurement σ per axis before a track has learnt its own, degrees.
+    pub measurement_sigma_deg: f64,
+    /// Floor of the learnt measurement σ, degrees.
+    pub min_measurement_sigma_deg: f64,
+    /// Floor of the reported σ, degrees.
+    pub min_sigma_deg: f64,
+    /// Variance inflation for correlated (overlapping) frames; `None`: frame/hop ratio.
+    pub overlap_inflation: Option<f64>,
+    /// Time constant of the activity, seconds.
+    pub activity_time_constant_s: f64,
+    /// A track without detection for this long dies, seconds.
+    pub max_coast_s: f64,
+    /// Two tracks closer than this merge (the younger dies), degrees.
+    pub merge_deg: f64,
+    /// Most tracks at once.
+    pub max_tracks: usize,
+}
+
+impl Default for TrackerConfig {
+    fn default() -> Self {
+        TrackerConfig {
+            birth_min_coherence: 0.15,
+            diffuse_margin: 0.1,
+            birth_window_frames: 10,
+            birth_min_hits: 7,
+            birth_gate_deg: 6.0,
+            confirm_hits: 5,
+            confirm_window_frames: 12,
+            update_min_coherence: 0.08,
+            gate_chi2: 13.8,
+            min_gate_deg: 3.0,
+            acceleration_noise: 0.25,
+            measurement_sigma_deg: 2.0,
+            min_measurement_sigma_deg: 0.02,
+            min_sigma_deg: 0.02,
+            overlap_inflation: None,
+            activity_time_constant_s: 0.15,
+            max_coast_s: 0.6,
+            merge_deg: 5.0,
+            max_tracks: 8,
+        }
+    }
+}
+
+#[derive(Clone, Debug)]
+struct Track {
+    id: u64,
+    kf: SphereKf,
+    /// Learnt measurement variance per axis, rad².
+    r2: f64,
+    activity: f64,
+    born_frame: u64,
+    last_hit_frame: u64,
+    hits_since_birth: u32,
+    confirmed: bool,
+}
+
+#[derive(Clone, Copy, Debug)]
+struct Candidate {
+    last: Vector3<f64>,
+    first_frame: u64,
+    last_frame: u64,
+    hits: u32,
+}
+
+/// Multi-target DoA tracker. Allocates in [`DoaTracker::new`] only.
+#[derive(Debug)]
+pub struct DoaTracker {
+    config: TrackerConfig,
+    dt: f64,
+    birth_threshold: f64,
+    inflation: f64,
+    next_id: u64,
+    frame: u64,
+    tracks: Vec<Track>,
+    candidates: Vec<Candidate>,
+    /// Scratch: which potentials were used this frame.
+    used: Vec<bool>,
+    /// Scratch: (cost, track, potential) association candidates.
+    pairs: Vec<(f64, usize, usize)>,
+}
+
+impl DoaTracker {
+    /// A tracker fed once per hop of `hop_s` seconds, for frames `overlap`
+    /// times longer than the hop, with potentials of at most `max_potentials`
+    /// per frame, and the array's diffuse-noise coherence floor.
+    pub fn new(
+        config: &TrackerConfig,
+        hop_s: f64,
+        overlap: f64,
+        max_potentials: usize,
+        diffuse_floor: f64,
+    ) -> Result<Self, AgentError> {
+        let bad = |field: &str, message: &str| AgentError::InvalidParameter {
+            field: format!("tracker.{field}"),
+            message: message.into(),
+        };
+        let c = config;
+        if !(hop_s > 0.0 && hop_s.is_finite()) {
+            return Err(bad("hop", "must be positive"));
+        }
+        if c.birth_min_hits == 0 || c.birth_min_hits > c.birth_window_frames {
+            return Err(bad("birth_min_hits", "must be in 1..=birth_window_frames"));
+        }
+        if c.confirm_hits > c.confirm_window_frames {
+            return Err(bad("confirm_hits", "must be <= confirm_window_frames"));
+        }
+        if c.max_tracks == 0 || c.max_tracks > MAX_TRACKS {
+            return Err(bad("max_tracks", "must be in 1..=64"));
+        }
+        let positive = [
+            ("birth_gate_deg", c.birth_gate_deg),
+            ("gate_chi2", c.gate_chi2),
+            ("measurement_sigma_deg", c.measurement_sigma_deg),
+            ("min_measurement_sigma_deg", c.min_measurement_sigma_deg),
+            ("activity_time_constant_s", c.activity_time_constant_s),
+            ("max_coast_s", c.max_coast_s),
+        ];
+        for (name, v) in positive {
+            if !(v > 0.0 && v.is_finite()) {
+                return Err(bad(name, "must be positive and finite"));
+            }
+        }
+        let non_negative = [
+            ("acceleration_noise", c.acceleration_noise),
+            ("min_gate_deg", c.min_gate_deg),
+            ("min_sigma_deg", c.min_sigma_deg),
+            ("merge_deg", c.merge_deg),
+            ("diffuse_margin", c.diffuse_margin),
+        ];
+        for (name, v) in non_negative {
+            if !(v >= 0.0 && v.is_finite()) {
+                return Err(bad(name, "must be non-negative and finite"));
+            }
+        }
+        let inflation = c.overlap_inflation.unwrap_or(overlap.max(1.0));
+        if !(inflation >= 1.0 && inflation.is_finite()) {
+            return Err(bad("overlap_inflation", "must be >= 1"));
+        }
+        let cap = c.max_tracks;
+        Ok(DoaTracker {
+            config: c.clone(),
+            dt: hop_s,
+            birth_threshold: c.birth_min_coherence.max(diffuse_floor + c.diffuse_margin),
+            inflation,
+            next_id: 1,
+            frame: 0,
+            tracks: Vec::with_capacity(cap),
+            candidates: Vec::with_capacity(4 * cap),
+            used: Vec::with_capacity(max_potentials.max(1)),
+            pairs: Vec::with_capacity(cap * max_potentials.max(1)),
+        })
+    }
+
+    /// The coherence a potential needs to start a track (after the diffuse floor).
+    pub fn birth_threshold(&self) -> f64 {
+        self.birth_threshold
+    }
+
+    /// Forgets every track and candidate (ids keep increasing).
+    pub fn reset(&mut self) {
+        self.tracks.clear();
+        self.candidates.clear();
+    }
+
+    /// Advances one hop with this frame's potentials and writes the current
+    /// tracks to `out` (cleared first; no allocation once `out` has
+    /// `max_tracks` capacity).
+    pub fn update(&mut self, potentials: &[PotentialSource], out: &mut Vec<TrackedDirection>) {
+        self.frame += 1;
+        let cfg = &self.config;
+        for t in &mut self.tracks {
+            t.kf.predict(self.dt, cfg.acceleration_noise);
+        }
+        self.associate(potentials);
+        self.births(potentials);
+        self.prune();
+        out.clear();
+        for t in &self.tracks {
+            let sigma = t.kf.sigma().max(self.config.min_sigma_deg.to_radians());
+            out.push(TrackedDirection {
+                track_id: t.id,
+                direction: t.kf.direction(),
+                activity: t.activity,
+                angular_sigma_rad: sigma,
+                confirmed: t.confirmed,
+            });
+        }
+    }
+
+    fn associate(&mut self, potentials: &[PotentialSource]) {
+        let cfg = &self.config;
+        self.used.clear();
+        self.used.resize(potentials.len().min(self.used.capacity()), false);
+        self.pairs.clear();
+        let min_gate = cfg.min_gate_deg.to_radians();
+        for (ti, t) in self.tracks.iter().enumerate() {
+            for (pi, p) in potentials.iter().enumerate().take(self.used.len()) {
+                if p.energy < cfg.update_min_coherence {
+                    continue;
+                }
+                let z = p.direction.into_inner();
+                let m2 = t.kf.mahalanobis2(&z, t.r2 * self.inflation);
+                if (m2 <= cfg.gate_chi2 || t.kf.d.angle(&z) <= min_gate)
+                    && self.pairs.len() < self.pairs.capacity()
+                {
+                    self.pairs.push((m2, ti, pi));
+                }
+            }
+        }
+        self.pairs.sort_unstable_by(|a, b| a.0.total_cmp(&b.0));
+        let alpha = 1.0 - (-self.dt / cfg.activity_time_constant_s).exp();
+        let min_r2 = cfg.min_measurement_sigma_deg.to_radians().powi(2);
+        let max_r2 = 100.0 * cfg.measurement_sigma_deg.to_radians().powi(2);
+        let mut updated = [false; MAX_TRACKS];
+        for &(_, ti, pi) in &self.pairs {
+            if self.used[pi] || ti >= updated.len() || updated[ti] {
+                continue;
+            }
+            self.used[pi] = true;
+            updated[ti] = true;
+            let t = &mut self.tracks[ti];
+            let z = potentials[pi].direction.into_inner();
+            // Learn the measurement variance from the innovation (clipped
+            // against outliers): E|y|²/2 = r² + tr(P_θθ)/2 per axis.
+            let y = t.kf.residual(&z);
+            let predicted = 0.5 * (t.kf.p[(0, 0)] + t.kf.p[(1, 1)]);
+            let sample = (0.5 * y.norm_squared() - predicted).clamp(0.0, 9.0 * t.r2);
+            t.r2 = (0.95 * t.r2 + 0.05 * sample).clamp(min_r2, max_r2);
+            t.kf.update(&z, t.r2 * self.inflation);
+            t.activity += alpha * (1.0 - t.activity);
+            t.last_hit_frame = self.frame;
+            t.hits_since_birth += 1;
+            if !t.confirmed && t.hits_since_birth >= cfg.confirm_hits {
+                t.confirmed = true;
+            }
+        }
+        for (ti, t) in self.tracks.iter_mut().enumerate() {
+            if !(ti < updated.len() && updated[ti]) {
+                t.activity -= alpha * t.activity;
+            }
+        }
+    }
+
+    fn births(&mut self, potentials: &[PotentialSource]) {
+        let cfg = &self.config;
+        let gate = cfg.birth_gate_deg.to_radians();
+        let window = cfg.birth_window_frames as u64;
+        // Forget candidates that can no longer reach their hits in their window.
+        let frame = self.frame;
+        self.candidates.retain(|c| {
+            let elapsed = frame - c.first_frame;
+            elapsed < window && c.hits + (window - elapsed) as u32 >= cfg.birth_min_hits
+        });
+        for (pi, p) in potentials.iter().enumerate() {
+            if self.used.get(pi).copied().unwrap_or(true) || p.energy < self.birth_threshold {
+                continue;
+            }
+            let z = p.direction.into_inner();
+            // Too close to an existing track: it is that track's (ungated) echo, not a new source.
+            if self.tracks.iter().any(|t| t.kf.d.angle(&z) < cfg.merge_deg.to_radians()) {
+                continue;
+            }
+            let near = self
+                .candidates
+                .iter()
+                .enumerate()
+                .filter(|(_, c)| c.last_frame < frame && c.last.angle(&z) <= gate)
+                .min_by(|a, b| a.1.last.angle(&z).total_cmp(&b.1.last.angle(&z)))
+                .map(|(i, _)| i);
+            match near {
+                Some(i) => {
+                    let c = &mut self.candidates[i];
+                    c.hits += 1;
+                    c.last = z;
+                    c.last_frame = frame;
+                }
+                None if self.candidates.len() < self.candidates.capacity() => {
+                    self.candidates.push(Candidate {
+                        last: z,
+                        first_frame: frame,
+                        last_frame: frame,
+                        hits: 1,
+                    });
+                }
+                None => {}
+            }
+        }
+        let mut i = 0;
+        while i < self.candidates.len() {
+            let c = self.candidates[i];
+            if c.hits >= cfg.birth_min_hits && self.tracks.len() < cfg.max_tracks {
+                let r2 = cfg.measurement_sigma_deg.to_radians().powi(2);
+                let kf = SphereKf::new(&Unit::new_normalize(c.last), r2, 1.0);
+                self.tracks.push(Track {
+                    id: self.next_id,
+                    kf,
+                    r2,
+                    activity: c.hits as f64 / cfg.birth_window_frames as f64,
+                    born_frame: frame,
+                    last_hit_frame: frame,
+                    hits_since_birth: 0,
+                    confirmed: cfg.confirm_hits == 0,
+                });
+                self.next_id += 1;
+                self.candidates.swap_remove(i);
+            } else {
+                i += 1;
+            }
+        }
+    }
+
+    fn prune(&mut self) {
+        let cfg = &self.config;
+        let frame = self.frame;
+        let coast = (cfg.max_coast_s / self.dt).ceil() as u64;
+        self.tracks.retain(|t| {
+            let alive = frame - t.last_hit_frame <= coast;
+            let tentative_expired = !t.confirmed && frame - t.born_frame > cfg.confirm_window_frames as u64;
+            alive && !tentative_expired
+        });
+        // Merge duplicates: the younger (larger id) of two close tracks dies.
+        let merge = cfg.merge_deg.to_radians();
+        let mut i = 0;
+        while i < self.tracks.len() {
+            let dup = (0..self.tracks.len()).any(|j| {
+                j != i
+                    && self.tracks[j].id < self.tracks[i].id
+                    && self.tracks[j].kf.d.angle(&self.tracks[i].kf.d) < merge
+            });
+            if dup {
+                self.tracks.remove(i);
+            } else {
+                i += 1;
+            }
+        }
+    }
+}

@@ -1,1 +1,221 @@
-//! (in progress)
+//! The agent's DSP chain, one hop at a time: STFT → SRP-PHAT → DoA tracker.
+//!
+//! This is what the CLI, the simulator and the live agent call. Everything is
+//! planned and allocated in [`Pipeline::new`]; [`Pipeline::process_hop`]
+//! allocates nothing. The pipeline is `Send` (it runs on the agent's DSP
+//! thread).
+//!
+//! Time: the caller stamps each hop with its first sample (Unix ns, derived
+//! from the sample count). A frame's DoAs are stamped at the middle of the
+//! analysed frame: first sample of the frame + `frame_len/(2·fs)`.
+
+use soundmap_proto::Stamp;
+
+use crate::array::ArrayGeometry;
+use crate::doa_tracker::DoaTracker;
+use crate::error::AgentError;
+use crate::srp::Srp;
+use crate::stft::{Stft, Window};
+
+pub use crate::doa_tracker::{TrackedDirection, TrackerConfig};
+pub use crate::srp::{PotentialSource, SrpConfig};
+
+/// Pipeline settings (TOML section of the agent config). Defaults follow
+/// ODAS: 16 kHz, frames of 256 samples, hops of 128.
+#[derive(Clone, Debug, PartialEq, serde::Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct PipelineConfig {
+    /// Sample rate of the audio, Hz.
+    pub sample_rate_hz: u32,
+    /// Analysis frame length, samples (even).
+    pub frame_len: usize,
+    /// Hop between frames, samples (≤ `frame_len`).
+    pub hop_len: usize,
+    /// Analysis window.
+    pub window: Window,
+    /// Localization.
+    pub srp: SrpConfig,
+    /// Tracking.
+    pub tracker: TrackerConfig,
+}
+
+impl Default for PipelineConfig {
+    fn default() -> Self {
+        PipelineConfig {
+            sample_rate_hz: 16_000,
+            frame_len: 256,
+            hop_len: 128,
+            window: Window::Hann,
+            srp: SrpConfig::default(),
+            tracker: TrackerConfig::default(),
+        }
+    }
+}
+
+/// What one hop produced.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct FrameResult {
+    /// Stamp of the DoAs: first sample of the analysed frame + `frame_len/(2·fs)`.
+    pub stamp: Stamp,
+    /// This frame's SRP peaks, strongest first (empty until the first full frame).
+    pub potentials: Vec<PotentialSource>,
+    /// Current tracks (tentative ones have `confirmed = false`).
+    pub tracks: Vec<TrackedDirection>,
+}
+
+/// STFT → SRP-PHAT → tracker for one array.
+#[derive(Debug)]
+pub struct Pipeline {
+    channels: usize,
+    sample_rate_hz: u32,
+    stft: Stft,
+    srp: Srp,
+    tracker: DoaTracker,
+    result: FrameResult,
+    /// Offset from a hop's first sample to its frame's DoA stamp, ns.
+    stamp_offset_ns: i64,
+}
+
+impl Pipeline {
+    /// Plans the pipeline for `array`; errors name the bad setting.
+    pub fn new(array: &ArrayGeometry, config: &PipelineConfig) -> Result<Self, AgentError> {
+        let fs = config.sample_rate_hz;
+        if !(1000..=384_000).contains(&fs) {
+            return Err(AgentError::InvalidParameter {
+                field: "sample_rate_hz".into(),
+                message: format!("must be in 1000..=384000, got {fs}"),
+            });
+        }
+        let stft = Stft::new(array.channels(), config.frame_len, config.hop_len, config.window)?;
+        let srp = Srp::new(array, fs, config.frame_len, &config.srp)?;
+        let hop_s = config.hop_len as f64 / fs as f64;
+        let overlap = config.frame_len as f64 / config.hop_len as f64;
+        let tracker =
+            DoaTracker::new(&config.tracker, hop_s, overlap, config.srp.max_sources, srp.diffuse_floor())?;
+        let offset_samples = config.hop_len as f64 - config.frame_len as f64 / 2.0;
+        Ok(Pipeline {
+            channels: array.channels(),
+            sample_rate_hz: fs,
+            stft,
+            srp,
+            tracker,
+            result: FrameResult {
+                stamp: Stamp::ZERO,
+                potentials: Vec::with_capacity(config.srp.max_sources),
+                tracks: Vec::with_capacity(config.tracker.max_tracks),
+            },
+            stamp_offset_ns: (offset_samples * 1e9 / fs as f64).round() as i64,
+        })
+    }
+
+    /// Number of channels expected (= microphones).
+    pub fn channels(&self) -> usize {
+        self.channels
+    }
+
+    /// Samples per channel in a hop.
+    pub fn hop_len(&self) -> usize {
+        self.stft.hop_len()
+    }
+
+    /// Analysis frame length, samples.
+    pub fn frame_len(&self) -> usize {
+        self.stft.frame_len()
+    }
+
+    /// Sample rate, Hz.
+    pub fn sample_rate_hz(&self) -> u32 {
+        self.sample_rate_hz
+    }
+
+    /// The localizer (grid sizes, band, diffuse floor).
+    pub fn srp(&self) -> &Srp {
+        &self.srp
+    }
+
+    /// The tracker (birth threshold).
+    pub fn tracker(&self) -> &DoaTracker {
+        &self.tracker
+    }
+
+    /// Processes one hop. `interleaved` holds exactly `hop_len` samples per
+    /// channel, interleaved (`s[t*channels + c]`), f32 full scale ±1 (non-finite
+    /// samples count as 0). `first_sample` is the Stamp of the hop's first
+    /// sample. Returns the result for the analysis frame that ends with this
+    /// hop (potentials and tracks empty until the first full frame).
+    ///
+    /// # Panics
+    /// If `interleaved.len() != hop_len * channels` (see [`Pipeline::try_process_hop`]).
+    pub fn process_hop(&mut self, first_sample: Stamp, interleaved: &[f32]) -> &FrameResult {
+        assert_eq!(
+            interleaved.len(),
+            self.hop_len() * self.channels,
+            "process_hop needs hop_len × channels interleaved samples"
+        );
+        self.result.stamp = first_sample.plus_ns(self.stamp_offset_ns);
+        if self.stft.push_hop(interleaved) {
+            self.srp.process(self.stft.spectra(), &mut self.result.potentials);
+            self.tracker.update(&self.result.potentials, &mut self.result.tracks);
+        } else {
+            self.result.potentials.clear();
+            self.result.tracks.clear();
+        }
+        &self.result
+    }
+
+    /// [`Pipeline::process_hop`] returning an error instead of panicking on a
+    /// block of the wrong size.
+    pub fn try_process_hop(
+        &mut self,
+        first_sample: Stamp,
+        interleaved: &[f32],
+    ) -> Result<&FrameResult, AgentError> {
+        let want = self.hop_len() * self.channels;
+        if interleaved.len() != want {
+            return Err(AgentError::InvalidParameter {
+                field: "hop".into(),
+                message: format!(
+                    "got {} samples, need hop_len × channels = {} × {} = {want}",
+                    interleaved.len(),
+                    self.hop_len(),
+                    self.channels
+                ),
+            });
+        }
+        Ok(self.process_hop(first_sample, interleaved))
+    }
+
+    /// The last result.
+    pub fn last_result(&self) -> &FrameResult {
+        &self.result
+    }
+
+    /// Forgets the audio and tracks seen so far (after a gap in the input).
+    pub fn reset(&mut self) {
+        self.stft.reset();
+        self.tracker.reset();
+        self.result.potentials.clear();
+        self.result.tracks.clear();
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn assert_send<T: Send>() {}
+
+    #[test]
+    fn pipeline_is_send_and_stamps_mid_frame() {
+        assert_send::<Pipeline>();
+        let array = ArrayGeometry::load("respeaker-4").unwrap();
+        let config = PipelineConfig { frame_len: 512, hop_len: 128, ..Default::default() };
+        let mut p = Pipeline::new(&array, &config).unwrap();
+        let hop = vec![0.0f32; 128 * 4];
+        let r = p.process_hop(Stamp::from_ns(1_000_000_000), &hop);
+        assert!(r.potentials.is_empty());
+        // Frame = [hop_start − 384, hop_start + 128) samples; middle = hop_start − 128 samples = −8 ms.
+        assert_eq!(r.stamp, Stamp::from_ns(1_000_000_000 - 8_000_000));
+        assert!(p.try_process_hop(Stamp::ZERO, &hop[1..]).is_err());
+    }
+}

@@ -1,1 +1,362 @@
-//! (in progress)
+//! SRP-PHAT localization on a hierarchical icosphere grid, with sub-grid
+//! refinement.
+//!
+//! Per frame ([`Srp::process`]):
+//! 1. PHAT-whiten each channel's spectrum on the band and compute the
+//!    GCC-PHAT of every microphone pair by inverse real FFT ([`phat`]).
+//! 2. Find the best direction on the fine icosphere by a coarse → fine branch
+//!    and bound over max-filtered correlations, as ODAS's SRP-PHAT-HSDA does
+//!    ([`search`]); or, for reference, scan every fine point.
+//! 3. Refine it off the grid by Newton ascent of the exact beamformer power
+//!    ([`refine`]), so the accuracy does not depend on the grid spacing.
+//! 4. Up to `max_sources` potential sources: after each peak, zero every
+//!    pair's correlation around the peak's TDOA (ODAS's suppression) and
+//!    search again, away from the peaks already found.
+//!
+//! Each potential's `energy` is the *PHAT coherence* at its direction: the
+//! steered response normalized per pair and bin, 1 for a noise-free plane
+//! wave, ≈ 0 for incoherent noise, whatever the signal level (PHAT makes it
+//! scale-free). The tracker uses it to tell sources from noise.
+//!
+//! Frames: directions are unit vectors in the `array` frame.
+
+pub mod diffuse;
+pub mod grid;
+pub mod phat;
+pub mod refine;
+pub mod search;
+
+use std::path::PathBuf;
+
+use nalgebra::{Unit, Vector3};
+use realfft::num_complex::Complex;
+
+use crate::array::{ArrayGeometry, SearchRegion};
+use crate::error::AgentError;
+use phat::{Band, CrossCorrelator};
+use refine::Refiner;
+use search::{Exclusion, SearchTables};
+
+/// How the fine grid is searched.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum SearchMode {
+    /// Coarse → fine branch and bound (ODAS's SRP-PHAT-HSDA idea).
+    #[default]
+    Hierarchical,
+    /// Every fine point (classic SRP-PHAT; the reference for benchmarks).
+    Exhaustive,
+}
+
+/// A cone of directions for [`SrpConfig::region`].
+#[derive(Clone, Debug, PartialEq, serde::Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct RegionConfig {
+    /// Cone axis, array frame (need not be normalized).
+    pub axis: [f64; 3],
+    /// Cone half-angle, degrees (90 = hemisphere, 180 = whole sphere).
+    pub max_angle_deg: f64,
+}
+
+/// SRP-PHAT settings. Defaults follow ODAS (coarse level 2, fine level 4).
+#[derive(Clone, Debug, PartialEq, serde::Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct SrpConfig {
+    /// Speed of sound, m/s.
+    pub speed_of_sound_m_s: f64,
+    /// Lowest frequency used, Hz.
+    pub min_frequency_hz: f64,
+    /// Highest frequency used, Hz (capped just below Nyquist).
+    pub max_frequency_hz: f64,
+    /// Icosphere level of the coarse grid (2 → 162 points on the sphere).
+    pub coarse_level: u32,
+    /// Icosphere level of the fine grid (4 → 2562 points on the sphere).
+    pub fine_level: u32,
+    /// Hierarchical (default) or exhaustive search of the fine grid.
+    pub search: SearchMode,
+    /// Most coarse cells opened per peak by the branch and bound.
+    pub max_coarse_cells: usize,
+    /// Newton refinement off the grid (default on).
+    pub refine: bool,
+    /// Most Newton steps per peak.
+    pub refine_iterations: usize,
+    /// Potential sources reported per frame (ODAS: 4).
+    pub max_sources: usize,
+    /// Minimum angle between two potentials of a frame, degrees.
+    pub min_separation_deg: f64,
+    /// Directions searched; `None` uses the array's default region.
+    pub region: Option<RegionConfig>,
+}
+
+impl Default for SrpConfig {
+    fn default() -> Self {
+        SrpConfig {
+            speed_of_sound_m_s: 343.0,
+            min_frequency_hz: 100.0,
+            max_frequency_hz: 8000.0,
+            coarse_level: 2,
+            fine_level: 4,
+            search: SearchMode::Hierarchical,
+            max_coarse_cells: 8,
+            refine: true,
+            refine_iterations: 6,
+            max_sources: 2,
+            min_separation_deg: 15.0,
+            region: None,
+        }
+    }
+}
+
+/// A direction where the steered response peaks in one frame.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct PotentialSource {
+    /// Unit vector toward the peak, array frame.
+    pub direction: Unit<Vector3<f64>>,
+    /// PHAT coherence at the peak: 1 for a noise-free plane wave, ≈ 0 for noise.
+    pub energy: f64,
+}
+
+/// SRP-PHAT localizer of one array.
+#[derive(Debug)]
+pub struct Srp {
+    config: SrpConfig,
+    region: SearchRegion,
+    /// Normal of the array plane when the array is planar (mirror symmetry).
+    planar_normal: Option<Unit<Vector3<f64>>>,
+    cc: CrossCorrelator,
+    tables: SearchTables,
+    refiner: Refiner,
+    /// `τₚ(d) = pair_axes[p]·d` samples.
+    pair_axes: Vec<Vector3<f64>>,
+    mics: Vec<crate::array::Microphone>,
+    gains: Vec<f32>,
+    found: Vec<Vector3<f64>>,
+    max_step_rad: f64,
+    diffuse_floor: f64,
+}
+
+impl Srp {
+    /// Plans the localizer for `array` at `sample_rate_hz` with frames of
+    /// `frame_len` samples. Everything per-frame is allocated here.
+    pub fn new(
+        array: &ArrayGeometry,
+        sample_rate_hz: u32,
+        frame_len: usize,
+        config: &SrpConfig,
+    ) -> Result<Self, AgentError> {
+        let bad = |field: &str, message: String| AgentError::InvalidParameter {
+            field: format!("srp.{field}"),
+            message,
+        };
+        array.validate(&PathBuf::from(format!("<array {}>", array.name)))?;
+        let fs = sample_rate_hz as f64;
+        let c = config.speed_of_sound_m_s;
+        if !(c.is_finite() && (200.0..=2000.0).contains(&c)) {
+            return Err(bad("speed_of_sound_m_s", format!("must be in 200..=2000 m/s, got {c}")));
+        }
+        if config.coarse_level > config.fine_level || config.fine_level > 6 {
+            return Err(bad(
+                "fine_level",
+                format!(
+                    "need coarse_level <= fine_level <= 6, got {} and {}",
+                    config.coarse_level, config.fine_level
+                ),
+            ));
+        }
+        let bin_hz = fs / frame_len as f64;
+        let lo = (config.min_frequency_hz / bin_hz).ceil().max(1.0) as usize;
+        let hi = ((config.max_frequency_hz / bin_hz).floor() as usize + 1).min(frame_len / 2);
+        if !(config.min_frequency_hz.is_finite() && config.max_frequency_hz.is_finite()) || hi <= lo + 2 {
+            return Err(bad(
+                "max_frequency_hz",
+                format!(
+                    "band {}..{} Hz leaves fewer than 3 FFT bins of {bin_hz} Hz below Nyquist",
+                    config.min_frequency_hz, config.max_frequency_hz
+                ),
+            ));
+        }
+        if config.max_sources == 0 {
+            return Err(bad("max_sources", "must be at least 1".into()));
+        }
+        let region = match &config.region {
+            None => array.default_region,
+            Some(r) => {
+                let axis = Vector3::from(r.axis);
+                let ok =
+                    axis.iter().all(|v| v.is_finite()) && r.max_angle_deg > 0.0 && r.max_angle_deg <= 180.0;
+                let axis = ok.then(|| Unit::try_new(axis, 1e-9)).flatten().ok_or_else(|| {
+                    bad("region", "needs a finite non-zero axis and 0 < max_angle_deg <= 180".into())
+                })?;
+                SearchRegion { axis, max_angle_rad: r.max_angle_deg.to_radians() }
+            }
+        };
+        let positions: Vec<Vector3<f64>> = array.positions().map(|p| p.coords).collect();
+        let m = positions.len();
+        let pair_mics: Vec<(usize, usize)> = (0..m).flat_map(|i| (i + 1..m).map(move |j| (i, j))).collect();
+        let pair_axes: Vec<Vector3<f64>> =
+            pair_mics.iter().map(|&(i, j)| (positions[j] - positions[i]) * (fs / c)).collect();
+        let tables =
+            SearchTables::new(array, &pair_axes, &pair_mics, &region, config.coarse_level, config.fine_level);
+        let radius = tables.lag_radius();
+        if radius >= frame_len / 2 {
+            return Err(bad(
+                "frame_len",
+                format!(
+                    "frames of {frame_len} samples are too short for an array of aperture {:.3} m \
+                     (needs lags up to {radius})",
+                    array.aperture_m()
+                ),
+            ));
+        }
+        let band = Band { lo, hi };
+        let cc = CrossCorrelator::new(m, frame_len, band, radius, tables.windows.clone());
+        let refiner = Refiner::new(&positions, c, fs, frame_len, lo, band.len());
+        let (normal, _) = array.best_fit_plane();
+        let fine_spacing = grid::SphereGrid::icosphere(config.fine_level).mean_spacing_rad();
+        let mut probe: Vec<Vector3<f64>> = grid::SphereGrid::icosphere(3)
+            .points()
+            .iter()
+            .filter(|d| region.contains(d, 0.0))
+            .copied()
+            .collect();
+        probe.extend(
+            [region.axis.into_inner(), Vector3::z(), -Vector3::z()]
+                .iter()
+                .filter(|d| region.contains(d, 0.0)),
+        );
+        let pair_dist: Vec<f64> =
+            pair_mics.iter().map(|&(i, j)| (positions[j] - positions[i]).norm()).collect();
+        let diffuse_floor =
+            diffuse::diffuse_floor(&pair_axes, &pair_dist, &probe, (lo, hi), frame_len, fs, c);
+        Ok(Srp {
+            config: config.clone(),
+            region,
+            planar_normal: array.is_planar().then_some(normal),
+            cc,
+            tables,
+            refiner,
+            pair_axes,
+            mics: array.microphones.clone(),
+            gains: vec![1.0; m],
+            found: Vec::with_capacity(config.max_sources),
+            max_step_rad: 0.75 * fine_spacing,
+            diffuse_floor,
+        })
+    }
+
+    /// Largest PHAT coherence that diffuse noise alone is expected to give
+    /// in the search region (see [`diffuse`]).
+    pub fn diffuse_floor(&self) -> f64 {
+        self.diffuse_floor
+    }
+
+    /// The directions searched.
+    pub fn region(&self) -> &SearchRegion {
+        &self.region
+    }
+
+    /// Number of microphone pairs.
+    pub fn pairs(&self) -> usize {
+        self.pair_axes.len()
+    }
+
+    /// Number of fine-grid points in the search region.
+    pub fn fine_points(&self) -> usize {
+        self.tables.fine_len()
+    }
+
+    /// Number of coarse cells.
+    pub fn coarse_cells(&self) -> usize {
+        self.tables.coarse_len()
+    }
+
+    /// The frequency band used, Hz (first and last bin centres).
+    pub fn band_hz(&self, sample_rate_hz: u32, frame_len: usize) -> (f64, f64) {
+        let b = sample_rate_hz as f64 / frame_len as f64;
+        (self.cc.band.lo as f64 * b, (self.cc.band.hi - 1) as f64 * b)
+    }
+
+    /// TDOA of pair `p` (microphones `i < j`, pairs in lexicographic order)
+    /// for a far-field source in direction `d`, samples: `(pⱼ − pᵢ)·d fs/c`.
+    pub fn tdoa_samples(&self, p: usize, d: &Vector3<f64>) -> f64 {
+        self.pair_axes[p].dot(d)
+    }
+
+    /// Localizes one frame. `spectra` are the channels' spectra (channel-major,
+    /// `frame_len/2 + 1` bins each, see [`crate::stft`]). `out` is cleared and
+    /// receives up to `max_sources` potentials, strongest first; it does not
+    /// grow beyond its capacity once that is ≥ `max_sources`.
+    pub fn process(&mut self, spectra: &[Complex<f32>], out: &mut Vec<PotentialSource>) {
+        out.clear();
+        self.found.clear();
+        self.cc.whiten(spectra);
+        if self.cc.phat_energy.iter().all(|&e| e == 0.0) {
+            return; // silence: no direction
+        }
+        self.cc.correlate();
+        let sep = self.config.min_separation_deg.to_radians();
+        for _ in 0..self.config.max_sources {
+            let exclusion = Exclusion { found: &self.found, cos_sep: sep.cos(), sep_rad: sep };
+            let hit = match self.config.search {
+                SearchMode::Hierarchical => self.tables.search_hierarchical(
+                    &self.cc.cc,
+                    &self.cc.cc_max,
+                    self.config.max_coarse_cells,
+                    &exclusion,
+                ),
+                SearchMode::Exhaustive => self.tables.search_exhaustive(&self.cc.cc, &exclusion),
+            };
+            let Some((f, value)) = hit else { break };
+            let grid_dir = Unit::new_normalize(self.tables.fine_dirs[f]);
+            let (direction, energy) = if self.config.refine {
+                self.refine_peak(grid_dir)
+            } else {
+                (self.region.clamp(grid_dir), value as f64 / self.pair_weight(&grid_dir))
+            };
+            out.push(PotentialSource { direction, energy });
+            self.found.push(direction.into_inner());
+            if out.len() < self.config.max_sources {
+                self.suppress(&direction);
+            }
+        }
+    }
+
+    /// Sum of the pair weights (directivity) at `d`; the number of pairs for
+    /// omnidirectional microphones.
+    fn pair_weight(&self, d: &Unit<Vector3<f64>>) -> f64 {
+        let (s, s2) = self.mics.iter().map(|m| m.gain(d)).fold((0.0, 0.0), |(s, s2), g| (s + g, s2 + g * g));
+        (0.5 * (s * s - s2)).max(1e-12)
+    }
+
+    fn refine_peak(&mut self, start: Unit<Vector3<f64>>) -> (Unit<Vector3<f64>>, f64) {
+        for (g, m) in self.gains.iter_mut().zip(&self.mics) {
+            *g = m.gain(&start) as f32;
+        }
+        let iterations = self.config.refine_iterations;
+        let (d, local) = match self.planar_normal {
+            Some(n) => {
+                // A planar array hears a source and its mirror image through
+                // its plane identically: refine on the side inside the region.
+                let mirror = Unit::new_normalize(start.into_inner() - n.into_inner() * (2.0 * n.dot(&start)));
+                let side =
+                    if self.region.axis.dot(&mirror) > self.region.axis.dot(&start) { mirror } else { start };
+                self.refiner.refine_planar(&self.cc, side, &n, &self.gains, iterations, self.max_step_rad)
+            }
+            None => self.refiner.refine(&self.cc, start, &self.gains, iterations, self.max_step_rad),
+        };
+        let d = self.region.clamp(d);
+        let e0: f64 = self.gains.iter().zip(&self.cc.phat_energy).map(|(&g, &e)| (g * g * e) as f64).sum();
+        let w = self.pair_weight(&start);
+        let coherence = (local.power - e0) / (2.0 * w * self.cc.band.len() as f64);
+        (d, coherence)
+    }
+
+    /// Zeroes every pair's correlation around the TDOAs of direction `d`.
+    fn suppress(&mut self, d: &Unit<Vector3<f64>>) {
+        let r = self.cc.lag_radius as f64;
+        for p in 0..self.pair_axes.len() {
+            let t = (self.pair_axes[p].dot(d) + r) as f32;
+            self.cc.suppress(p, t, 1);
+        }
+    }
+}

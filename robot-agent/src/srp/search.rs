@@ -1,0 +1,350 @@
+//! Precomputed TDOA tables and the hierarchical (coarse → fine) search.
+//!
+//! The fine grid (icosphere `fine_level`, only the points in the search
+//! region) is partitioned into cells: each fine point belongs to its nearest
+//! coarse point (icosphere `coarse_level`). As in ODAS's SRP-PHAT-HSDA, the
+//! coarse response of a cell sums, per pair, the *maximum* of the pair's
+//! correlation over every lag a fine point of the cell may read, so it bounds
+//! the fine response of every point of the cell from above. The search is then
+//! a branch and bound: cells are opened in decreasing order of their bound
+//! until the best fine value found beats the next bound (at most
+//! `max_cells`), and a hill climb on the fine mesh finishes the job when the
+//! cap stopped it early. Fine values interpolate the correlations linearly
+//! between integer lags.
+//!
+//! TDOA convention: pair `p = (i, j)` has `τₚ(d) = (pⱼ − pᵢ)·d · fs/c`
+//! samples for a far-field source in direction `d` (array frame).
+
+use nalgebra::Vector3;
+
+use super::grid::SphereGrid;
+use crate::array::{ArrayGeometry, SearchRegion};
+
+/// TDOA tables of the coarse and fine grids.
+#[derive(Debug)]
+pub struct SearchTables {
+    pairs: usize,
+    /// Entries per pair row of the correlation buffers.
+    stride: usize,
+    /// Fine points kept, grouped by cell.
+    pub(super) fine_dirs: Vec<Vector3<f64>>,
+    /// `fine_tau[f*P + p] = τₚ(d_f) + R` (fractional index in pair `p`'s row).
+    fine_tau: Vec<f32>,
+    /// Directivity weights per (fine point, pair), when any microphone is directional.
+    fine_weight: Option<Vec<f32>>,
+    fine_nb_offsets: Vec<u32>,
+    fine_nb: Vec<u32>,
+    /// Fine points `cell_offsets[c]..cell_offsets[c+1]` form coarse cell `c`.
+    cell_offsets: Vec<u32>,
+    coarse_dirs: Vec<Vector3<f64>>,
+    /// Angular radius of each cell (largest angle from its coarse point to its fine points).
+    cell_radius: Vec<f64>,
+    /// `coarse_idx[c*P + p]`: flat index into `cc_max` (pair row + rounded lag).
+    coarse_idx: Vec<u32>,
+    coarse_weight: Option<Vec<f32>>,
+    /// Half-width of the sliding maximum each pair needs.
+    pub(super) windows: Vec<usize>,
+    /// Largest |τ| over pairs and kept points, samples.
+    pub(super) max_tdoa: f64,
+    // Per-frame scratch.
+    coarse_val: Vec<f32>,
+    cell_open: Vec<bool>,
+}
+
+/// Which fine points are excluded (too close to an earlier potential).
+#[derive(Debug)]
+pub struct Exclusion<'a> {
+    /// Directions already reported this frame.
+    pub found: &'a [Vector3<f64>],
+    /// cos of the minimum separation.
+    pub cos_sep: f64,
+    /// The minimum separation, radians.
+    pub sep_rad: f64,
+}
+
+impl Exclusion<'_> {
+    fn excludes(&self, d: &Vector3<f64>) -> bool {
+        self.found.iter().any(|f| f.dot(d) > self.cos_sep)
+    }
+}
+
+impl SearchTables {
+    /// Builds the tables. `pair_axes[p]` maps a direction to pair `p`'s TDOA
+    /// in samples; `lag_radius(max_tdoa, max_window)` must return the `R` the
+    /// correlator will keep.
+    pub fn new(
+        array: &ArrayGeometry,
+        pair_axes: &[Vector3<f64>],
+        pair_mics: &[(usize, usize)],
+        region: &SearchRegion,
+        coarse_level: u32,
+        fine_level: u32,
+    ) -> Self {
+        let coarse_grid = SphereGrid::icosphere(coarse_level);
+        let fine_grid = SphereGrid::icosphere(fine_level);
+        let margin = 0.5 * fine_grid.mean_spacing_rad();
+        let keep: Vec<bool> = fine_grid.points().iter().map(|d| region.contains(d, margin)).collect();
+        // Cell of every kept fine point.
+        let mut members: Vec<Vec<usize>> = vec![Vec::new(); coarse_grid.len()];
+        for (f, d) in fine_grid.points().iter().enumerate() {
+            if keep[f] {
+                members[coarse_grid.nearest(d)].push(f);
+            }
+        }
+        let mut order = Vec::new(); // kept fine indices in cell order
+        let mut cell_offsets = vec![0u32];
+        let mut coarse_dirs = Vec::new();
+        let mut cell_radius = Vec::new();
+        for (c, m) in members.iter().enumerate() {
+            if m.is_empty() {
+                continue;
+            }
+            let cd = coarse_grid.points()[c];
+            cell_radius.push(m.iter().map(|&f| cd.angle(&fine_grid.points()[f])).fold(0.0, f64::max));
+            coarse_dirs.push(cd);
+            order.extend_from_slice(m);
+            cell_offsets.push(order.len() as u32);
+        }
+        let mut new_index = vec![u32::MAX; fine_grid.len()];
+        for (k, &f) in order.iter().enumerate() {
+            new_index[f] = k as u32;
+        }
+        let mut fine_nb_offsets = vec![0u32];
+        let mut fine_nb = Vec::new();
+        for &f in &order {
+            fine_nb.extend(
+                fine_grid.neighbours(f).iter().map(|&n| new_index[n as usize]).filter(|&n| n != u32::MAX),
+            );
+            fine_nb_offsets.push(fine_nb.len() as u32);
+        }
+        let fine_dirs: Vec<_> = order.iter().map(|&f| fine_grid.points()[f]).collect();
+
+        let pairs = pair_axes.len();
+        let tau = |a: &Vector3<f64>, d: &Vector3<f64>| a.dot(d);
+        let mut max_tdoa = 0.0f64;
+        for d in fine_dirs.iter().chain(&coarse_dirs) {
+            for a in pair_axes {
+                max_tdoa = max_tdoa.max(tau(a, d).abs());
+            }
+        }
+        // Sliding-maximum half-width per pair so that every lag a fine point
+        // of a cell reads (floor(τ) and floor(τ)+1) is within ±w of the cell's
+        // rounded coarse lag.
+        let mut windows = vec![0usize; pairs];
+        for c in 0..coarse_dirs.len() {
+            for f in cell_offsets[c] as usize..cell_offsets[c + 1] as usize {
+                for (p, a) in pair_axes.iter().enumerate() {
+                    let nc = tau(a, &coarse_dirs[c]).round() as i64;
+                    let fl = tau(a, &fine_dirs[f]).floor() as i64;
+                    let need = (nc - fl).max(fl + 1 - nc).max(0) as usize;
+                    windows[p] = windows[p].max(need);
+                }
+            }
+        }
+
+        let directional = array.microphones.iter().any(|m| m.direction.is_some());
+        let weight = |d: &Vector3<f64>, p: usize| -> f32 {
+            let u = nalgebra::Unit::new_normalize(*d);
+            let (i, j) = pair_mics[p];
+            (array.microphones[i].gain(&u) * array.microphones[j].gain(&u)) as f32
+        };
+        let fine_weight = directional.then(|| {
+            fine_dirs.iter().flat_map(|d| (0..pairs).map(move |p| weight(d, p))).collect::<Vec<f32>>()
+        });
+        let coarse_weight = fine_weight.as_ref().map(|fw| {
+            let mut cw = vec![0.0f32; coarse_dirs.len() * pairs];
+            for c in 0..coarse_dirs.len() {
+                for f in cell_offsets[c] as usize..cell_offsets[c + 1] as usize {
+                    for p in 0..pairs {
+                        cw[c * pairs + p] = cw[c * pairs + p].max(fw[f * pairs + p]);
+                    }
+                }
+            }
+            cw
+        });
+
+        SearchTables {
+            pairs,
+            stride: 0,
+            fine_tau: Vec::new(),
+            coarse_idx: Vec::new(),
+            fine_weight,
+            fine_nb_offsets,
+            fine_nb,
+            coarse_val: vec![0.0; coarse_dirs.len()],
+            cell_open: vec![false; coarse_dirs.len()],
+            cell_offsets,
+            cell_radius,
+            coarse_weight,
+            coarse_dirs,
+            fine_dirs,
+            windows,
+            max_tdoa,
+        }
+        .with_lags(pair_axes)
+    }
+
+    /// Fills the lag tables once the correlator's radius `R` is known
+    /// (`R` = ⌈max TDOA⌉ + max window + 2).
+    fn with_lags(mut self, pair_axes: &[Vector3<f64>]) -> Self {
+        let r = self.lag_radius();
+        self.stride = 2 * r + 2;
+        let rf = r as f64;
+        self.fine_tau = self
+            .fine_dirs
+            .iter()
+            .flat_map(|d| pair_axes.iter().map(move |a| (a.dot(d) + rf) as f32))
+            .collect();
+        let stride = self.stride;
+        self.coarse_idx = self
+            .coarse_dirs
+            .iter()
+            .flat_map(|d| {
+                pair_axes
+                    .iter()
+                    .enumerate()
+                    .map(move |(p, a)| (p * stride) as u32 + (a.dot(d).round() + rf) as u32)
+            })
+            .collect();
+        self
+    }
+
+    /// The correlation lag radius `R` these tables need.
+    pub fn lag_radius(&self) -> usize {
+        self.max_tdoa.ceil() as usize + self.windows.iter().copied().max().unwrap_or(0) + 2
+    }
+
+    /// Number of fine points searched.
+    pub fn fine_len(&self) -> usize {
+        self.fine_dirs.len()
+    }
+
+    /// Number of coarse cells.
+    pub fn coarse_len(&self) -> usize {
+        self.coarse_dirs.len()
+    }
+
+    /// Fine response (sum over pairs of the interpolated correlation) at fine point `f`.
+    #[inline]
+    pub fn fine_value(&self, cc: &[f32], f: usize) -> f32 {
+        let taus = &self.fine_tau[f * self.pairs..(f + 1) * self.pairs];
+        let mut acc = 0.0f32;
+        match &self.fine_weight {
+            None => {
+                for (&t, row) in taus.iter().zip(cc.chunks_exact(self.stride)) {
+                    let i = t as usize;
+                    let a = t - i as f32;
+                    let (x0, x1) = (row[i], row[i + 1]);
+                    acc += x0 + a * (x1 - x0);
+                }
+            }
+            Some(w) => {
+                let w = &w[f * self.pairs..(f + 1) * self.pairs];
+                for ((&t, row), &g) in taus.iter().zip(cc.chunks_exact(self.stride)).zip(w) {
+                    let i = t as usize;
+                    let a = t - i as f32;
+                    let (x0, x1) = (row[i], row[i + 1]);
+                    acc += g * (x0 + a * (x1 - x0));
+                }
+            }
+        }
+        acc
+    }
+
+    fn coarse_values(&mut self, cc_max: &[f32]) {
+        let p = self.pairs;
+        for (c, v) in self.coarse_val.iter_mut().enumerate() {
+            let idx = &self.coarse_idx[c * p..(c + 1) * p];
+            *v = match &self.coarse_weight {
+                None => idx.iter().map(|&i| cc_max[i as usize]).sum(),
+                Some(w) => idx
+                    .iter()
+                    .zip(&w[c * p..(c + 1) * p])
+                    .map(|(&i, &g)| g * cc_max[i as usize].max(0.0))
+                    .sum(),
+            };
+        }
+    }
+
+    /// Hierarchical search: the best fine point (index, response) outside
+    /// `exclusion`, or `None` when every point is excluded.
+    pub fn search_hierarchical(
+        &mut self,
+        cc: &[f32],
+        cc_max: &[f32],
+        max_cells: usize,
+        exclusion: &Exclusion<'_>,
+    ) -> Option<(usize, f32)> {
+        self.coarse_values(cc_max);
+        for (c, open) in self.cell_open.iter_mut().enumerate() {
+            // Cells entirely inside an exclusion zone are never opened.
+            *open = exclusion
+                .found
+                .iter()
+                .any(|f| f.angle(&self.coarse_dirs[c]) + self.cell_radius[c] < exclusion.sep_rad);
+        }
+        let mut best: Option<(usize, f32)> = None;
+        for _ in 0..max_cells.max(1) {
+            let mut next: Option<(usize, f32)> = None;
+            for (c, (&v, &open)) in self.coarse_val.iter().zip(&self.cell_open).enumerate() {
+                if !open && next.is_none_or(|(_, nv)| v > nv) {
+                    next = Some((c, v));
+                }
+            }
+            let Some((c, bound)) = next else { break };
+            if best.is_some_and(|(_, bv)| bound <= bv) {
+                break;
+            }
+            self.cell_open[c] = true;
+            for f in self.cell_offsets[c] as usize..self.cell_offsets[c + 1] as usize {
+                if exclusion.excludes(&self.fine_dirs[f]) {
+                    continue;
+                }
+                let v = self.fine_value(cc, f);
+                if best.is_none_or(|(_, bv)| v > bv) {
+                    best = Some((f, v));
+                }
+            }
+        }
+        best.map(|b| self.hill_climb(cc, b, exclusion))
+    }
+
+    /// Exhaustive search over every fine point (the classic SRP-PHAT scan).
+    pub fn search_exhaustive(&self, cc: &[f32], exclusion: &Exclusion<'_>) -> Option<(usize, f32)> {
+        let mut best: Option<(usize, f32)> = None;
+        for f in 0..self.fine_dirs.len() {
+            if exclusion.excludes(&self.fine_dirs[f]) {
+                continue;
+            }
+            let v = self.fine_value(cc, f);
+            if best.is_none_or(|(_, bv)| v > bv) {
+                best = Some((f, v));
+            }
+        }
+        best
+    }
+
+    /// Moves to the best neighbour until none is better (a local maximum of the fine mesh).
+    fn hill_climb(&self, cc: &[f32], start: (usize, f32), exclusion: &Exclusion<'_>) -> (usize, f32) {
+        let mut cur = start;
+        for _ in 0..64 {
+            let mut moved = false;
+            let (a, b) = (self.fine_nb_offsets[cur.0] as usize, self.fine_nb_offsets[cur.0 + 1] as usize);
+            for &n in &self.fine_nb[a..b] {
+                let n = n as usize;
+                if exclusion.excludes(&self.fine_dirs[n]) {
+                    continue;
+                }
+                let v = self.fine_value(cc, n);
+                if v > cur.1 {
+                    cur = (n, v);
+                    moved = true;
+                }
+            }
+            if !moved {
+                break;
+            }
+        }
+        cur
+    }
+}
