@@ -1,1 +1,102 @@
-//! (in progress)
+//! The link to the coordinator: a client of `soundmap.v1.RobotLink/Connect`.
+//!
+//! - [`LinkClient`]: one stream, driven step by step. A simulator that steps time
+//!   uses it directly: send observations, [`LinkClient::wait_acked`], read the
+//!   commands. It keeps the coordinator's order (see below).
+//! - [`Link`]: the live agent's link, a tokio task around `LinkClient` that
+//!   reconnects with exponential backoff, keeps a bounded buffer of observations
+//!   (oldest dropped and counted when full), resends unacknowledged observations
+//!   after a reconnect, sends heartbeats when idle, and hands reposition commands
+//!   to a [`Navigator`](crate::navigator::Navigator), relaying its acks and progress.
+//!
+//! **Ordering guarantee.** The coordinator sends the commands caused by an
+//! observation before the acknowledgement that covers it, on the same stream.
+//! `LinkClient` reads the stream in order and queues every command it reads
+//! while waiting for an ack, so once `wait_acked(seq)` returns, every command
+//! caused by observations `≤ seq` is already in the client's event queue
+//! ([`LinkClient::try_event`] returns it without waiting).
+//!
+//! `StreamError`s (one bad message; the stream stays open) are logged with their
+//! field and message, counted, and surfaced as [`CoordinatorEvent::StreamError`].
+
+mod buffer;
+mod client;
+mod live;
+
+use std::time::Duration;
+
+use soundmap_proto::{RepositionCommand, ValidationError};
+
+pub use buffer::ObservationBuffer;
+pub use client::LinkClient;
+pub use live::{Link, LinkHandle, LinkStats};
+
+/// A message from the coordinator other than welcome and acknowledgements.
+#[derive(Clone, Debug, PartialEq)]
+pub enum CoordinatorEvent {
+    /// Drive the base to a goal (replaces any older command).
+    Reposition(RepositionCommand),
+    /// A reposition command that failed validation (the robot should refuse it).
+    InvalidReposition {
+        /// Its id.
+        command_id: u64,
+        /// What is wrong with it.
+        error: ValidationError,
+    },
+    /// Stop executing a command.
+    Cancel {
+        /// The command.
+        command_id: u64,
+        /// Why.
+        reason: String,
+    },
+    /// The coordinator dropped one of our messages.
+    StreamError(StreamErrorReport),
+}
+
+/// A `StreamError` from the coordinator.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct StreamErrorReport {
+    /// google.rpc.Code value (3 INVALID_ARGUMENT, 9 FAILED_PRECONDITION, 11 OUT_OF_RANGE, …).
+    pub code: i32,
+    /// Path of the offending field, e.g. `observation.doas[1].direction_in_array`.
+    pub field: String,
+    /// What is wrong.
+    pub message: String,
+    /// Sequence of the offending observation, when it was one.
+    pub sequence: Option<u64>,
+}
+
+/// Settings of the live [`Link`].
+#[derive(Clone, Debug, PartialEq)]
+pub struct LinkConfig {
+    /// Coordinator address, e.g. `http://10.0.0.2:50051`.
+    pub endpoint: String,
+    /// Bearer token sent as `authorization: Bearer …`, when the coordinator requires one.
+    pub token: Option<String>,
+    /// Most observations kept while unacknowledged; the oldest is dropped beyond it.
+    pub buffer_capacity: usize,
+    /// A heartbeat is sent after this long without sending anything.
+    pub heartbeat_interval: Duration,
+    /// First wait before reconnecting; doubled after each failure.
+    pub backoff_initial: Duration,
+    /// Longest wait before reconnecting.
+    pub backoff_max: Duration,
+    /// Longest wait for the TCP connection and the coordinator's welcome.
+    pub connect_timeout: Duration,
+}
+
+impl LinkConfig {
+    /// Defaults for `endpoint`: 1024 observations, 1 s heartbeats, backoff 0.2 s → 10 s, 5 s connect timeout.
+    pub fn new(endpoint: impl Into<String>) -> Self {
+        LinkConfig {
+            endpoint: endpoint.into(),
+            token: None,
+            buffer_capacity: 1024,
+            heartbeat_interval: Duration::from_secs(1),
+            backoff_initial: Duration::from_millis(200),
+            backoff_max: Duration::from_secs(10),
+            connect_timeout: Duration::from_secs(5),
+        }
+    }
+}
