@@ -55,11 +55,15 @@ pub struct ArrayConfig {
     /// Impulse responses are rebuilt when a source or microphone has moved more
     /// than this from where they were built (m).
     pub position_tolerance_m: f64,
+    /// Crossfade from the previous responses across a block when they change
+    /// (true; false switches abruptly at the block start, which clicks, and
+    /// exists to show that it does).
+    pub crossfade: bool,
 }
 
 impl ArrayConfig {
     /// `microphone_count` microphones, 512-sample blocks (32 ms at 16 kHz), no noise,
-    /// 1 mm position tolerance.
+    /// 1 mm position tolerance, crossfades on.
     pub fn new(microphone_count: usize, seed: u64) -> Self {
         ArrayConfig {
             microphone_count,
@@ -68,6 +72,7 @@ impl ArrayConfig {
             diffuse_noise: None,
             seed,
             position_tolerance_m: 1e-3,
+            crossfade: true,
         }
     }
 }
@@ -311,7 +316,7 @@ impl ArrayRenderer {
                     self.engine.filter_spectra(&self.ir, &mut pair.early);
                     pair.built_for = Some((src.generation, *mic));
                     self.stats.response_builds += 1;
-                    if had {
+                    if had && self.config.crossfade {
                         for ((d, e), o) in pair.delta.iter_mut().zip(&pair.early).zip(&pair.early_prev) {
                             *d = e - o;
                         }
