@@ -1,0 +1,154 @@
+//! `agent.toml` parsing and validation.
+
+use std::path::{Path, PathBuf};
+
+use super::*;
+
+fn example_path() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("../deploy/agent.example.toml")
+}
+
+fn example() -> String {
+    std::fs::read_to_string(example_path()).unwrap()
+}
+
+#[test]
+fn the_example_config_parses() {
+    let c = AgentConfig::load(&example_path()).unwrap();
+    assert_eq!(c.robot_id.as_str(), "pioneer-1");
+    assert_eq!(c.coordinator.endpoint, "http://127.0.0.1:50051");
+    assert_eq!(c.array, "16soundsusb-pioneer");
+    let DoaSource::Own { audio, pipeline } = &c.doa else { panic!("{:?}", c.doa) };
+    let dir = example_path().parent().unwrap().to_path_buf();
+    assert_eq!(audio.input, AudioInput::Wav { path: dir.join("recordings/pioneer-1.wav") });
+    assert!(audio.realtime);
+    assert_eq!(pipeline.hop_len, 128);
+    assert_eq!(
+        c.pose.source,
+        PoseSource::Tum { path: dir.join("recordings/pioneer-1.tum"), start_s: Some(0.0) }
+    );
+    assert_eq!(c.navigator.path, dir.join("goals.jsonl"));
+    assert_eq!(c.link.buffer_capacity, 1024);
+    assert_eq!(c.link.endpoint, c.coordinator.endpoint);
+}
+
+/// The example with `from` replaced by `to` must fail on `field` with a message containing `what`.
+fn fails(from: &str, to: &str, field: &str, what: &str) {
+    fails_with(&[(from, to)], field, what)
+}
+
+/// [`fails`] with several replacements.
+fn fails_with(edits: &[(&str, &str)], field: &str, what: &str) {
+    let mut text = example();
+    for (from, to) in edits {
+        assert!(text.contains(from), "example has no {from:?}");
+        text = text.replacen(from, to, 1);
+    }
+    let (from, to) = edits[0];
+    match AgentConfig::parse(&text, Path::new("conf/agent.toml")) {
+        Err(AgentError::Config { path, field: f, message }) => {
+            assert_eq!(path, Path::new("conf/agent.toml"));
+            assert_eq!(f, field, "{from:?} → {to:?}: {message}");
+            assert!(message.contains(what), "{from:?} → {to:?}: {message}");
+            let shown = AgentError::Config { path, field: f, message }.to_string();
+            assert!(shown.starts_with(&format!("conf/agent.toml: {field}: ")), "{shown}");
+        }
+        other => panic!("{from:?} → {to:?}: expected a config error, got {other:?}"),
+    }
+}
+
+#[test]
+fn parse_errors_name_the_field() {
+    fails("robot_id = \"pioneer-1\"", "robot_id = \"pioneer 1\"", "robot_id", "invalid character");
+    fails("pace = \"realtime\"", "pace = \"realtime\"\nchanels = 4", "audio.chanels", "unknown field");
+    fails("source = \"wav\"", "source = \"mp3\"", "audio.source", "unknown variant");
+    fails("hop_len = 128\nwindow", "hop_len = \"x\"\nwindow", "pipeline.hop_len", "invalid type");
+    fails("buffer_capacity = 1024", "buffer_capacity = -1", "link.buffer_capacity", "");
+    fails("[navigator]", "[navigatr]", "navigatr", "unknown field");
+}
+
+#[test]
+fn validation_errors_name_the_field() {
+    let wav = "source = \"wav\"\npath = \"recordings/pioneer-1.wav\"";
+    fails(
+        wav,
+        "source = \"raw\"\npath = \"x.raw\"\nformat = \"s16le\"\nsample_rate_hz = 16000",
+        "audio.channels",
+        "required when audio.source = \"raw\"",
+    );
+    fails(
+        wav,
+        "source = \"raw\"\npath = \"x.raw\"\nformat = \"s16le\"\nchannels = 16\nsample_rate_hz = 48000",
+        "audio.sample_rate_hz",
+        "does not match pipeline.sample_rate_hz = 16000",
+    );
+    fails(wav, "source = \"wav\"\npath = \"a.wav\"\nchannels = 16", "audio.channels", "not used for WAV");
+    fails_with(
+        &[
+            (wav, "source = \"stdin\"\nformat = \"s16le\"\nchannels = 16\nsample_rate_hz = 16000"),
+            ("pace = \"realtime\"", "pace = \"asap\""),
+        ],
+        "audio.pace",
+        "only files",
+    );
+    fails(
+        wav,
+        "source = \"live\"\nformat = \"s16le\"\nchannels = 16\nsample_rate_hz = 16000",
+        "audio.device",
+        "required",
+    );
+    fails(wav, "source = \"wav\"\npath = \"a.wav\"\nchannel_map = []", "audio.channel_map", "empty");
+    fails(wav, "source = \"wav\"\npath = \"a.wav\"\nstart_ns = -5", "audio.start_ns", "negative");
+    fails(
+        "endpoint = \"http://127.0.0.1:50051\"",
+        "endpoint = \"127.0.0.1:50051\"",
+        "coordinator.endpoint",
+        "not a URL",
+    );
+    fails("# token = \"…\"", "token = \"a\"\ntoken_file = \"t\"", "coordinator.token_file", "not both");
+    fails("# token = \"…\"", "token_file = \"missing.token\"", "coordinator.token_file", "missing.token");
+    fails("preset = \"16soundsusb-pioneer\"", "", "array", "give `preset");
+    fails("path = \"recordings/pioneer-1.tum\"", "", "pose.path", "required when pose.source = \"tum\"");
+    fails("source = \"tum\"", "source = \"jsonl_tcp\"", "pose.path", "not used");
+    fails("max_gap_s = 0.5", "max_gap_s = 0", "pose.max_gap_s", "positive");
+    fails("capacity = 10000", "capacity = 1", "pose.capacity", "at least 2");
+    fails(
+        "arrival_tolerance_m = 0.25",
+        "arrival_tolerance_m = 0",
+        "navigator.arrival_tolerance_m",
+        "positive",
+    );
+    fails("backoff_initial_ms = 200", "backoff_initial_ms = 20000", "link.backoff_initial_ms", "more than");
+    fails(
+        "heartbeat_interval_ms = 1000",
+        "heartbeat_interval_ms = 0",
+        "link.heartbeat_interval_ms",
+        "at least",
+    );
+    fails(
+        "source = \"own\"",
+        "source = \"odas\"\nlisten = \"127.0.0.1:9000\"",
+        "audio",
+        "not used when doa.source = \"odas\"",
+    );
+}
+
+#[test]
+fn odas_and_live_pose_sources() {
+    let text = example();
+    let start = text.find("\n[audio]\n").unwrap();
+    let end = text.find("\n[pose]\n").unwrap();
+    let text = format!("{}{}", &text[..start], &text[end..])
+        .replacen("source = \"own\"", "source = \"odas\"\nlisten = \"127.0.0.1:9000\"\nhop_len = 256", 1)
+        .replacen(
+            "source = \"tum\"\npath = \"recordings/pioneer-1.tum\"\n",
+            "source = \"jsonl_tcp\"\nlisten = \"127.0.0.1:7001\"\n",
+            1,
+        )
+        .replacen("start_s = 0.0\n", "", 1);
+    let c = AgentConfig::parse(&text, Path::new("agent.toml")).unwrap();
+    let DoaSource::Odas(o) = &c.doa else { panic!() };
+    assert_eq!(o.input, OdasInput::Listen("127.0.0.1:9000".parse().unwrap()));
+    assert_eq!((o.hop_len, o.sample_rate_hz, o.start), (256, 16_000, None));
+    assert_eq!(c.pose.source, PoseSource::JsonlTcp("127.0.0.1:7001".parse().unwrap()));
+}
