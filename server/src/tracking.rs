@@ -4,6 +4,7 @@
 //! - [`filter`]: the CV model and the per-DoA tangent-plane EKF update (Joseph form);
 //! - [`lag_buffer`]: the fixed-lag buffer that applies late DoAs exactly;
 //! - [`lifecycle`]: tentative → confirmed → lost;
+//! - `step`: what one DoA does to the replayable state of a track;
 //! - [`config`]: [`TrackerConfig`] and its validation.
 //!
 //! [`SourceTracker`] ties them together. It is pure: stamps and `now` are inputs.
@@ -24,8 +25,7 @@ pub mod config;
 pub mod filter;
 pub mod lag_buffer;
 pub mod lifecycle;
-
-use std::cmp::Ordering;
+mod step;
 
 use nalgebra::{Matrix3, Matrix6, Point3, Vector3};
 use soundmap_proto::Stamp;
@@ -37,9 +37,10 @@ pub use lifecycle::{LossReason, TrackState};
 use crate::ray::Ray;
 use crate::stats::chi2_quantile;
 use crate::triangulation::{Gate, Triangulation};
-use filter::{DoaNoiseModel, doa_innovation, joseph_update};
+use filter::doa_innovation;
 use lag_buffer::{Insertion, LagBuffer, Refusal};
-use lifecycle::{Confirmation, LifecycleRules, check_loss};
+use lifecycle::{Confirmation, check_loss};
+use step::{Observation, Snapshot, StepParams, step};
 
 /// What became of one DoA given to [`SourceTracker::update`].
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -141,98 +142,6 @@ impl TrackEstimate {
     pub fn position_covariance(&self) -> Matrix3<f64> {
         self.covariance.fixed_view::<3, 3>(0, 0).into_owned()
     }
-}
-
-/// A DoA as buffered: the robot it came from and its ray. Ordered by robot
-/// then ray numbers (total order), so that equal stamps replay in one order.
-#[derive(Clone, Copy, Debug)]
-struct Observation {
-    robot: u32,
-    ray: Ray,
-}
-
-impl Observation {
-    fn numbers(&self) -> [f64; 8] {
-        let (o, d) = (&self.ray.origin, &self.ray.direction);
-        [o.x, o.y, o.z, d.x, d.y, d.z, self.ray.sigma_rad, self.ray.origin_sigma_m]
-    }
-}
-
-impl Ord for Observation {
-    fn cmp(&self, other: &Self) -> Ordering {
-        self.robot.cmp(&other.robot).then_with(|| {
-            let (a, b) = (self.numbers(), other.numbers());
-            a.iter().zip(&b).map(|(x, y)| x.total_cmp(y)).find(|c| c.is_ne()).unwrap_or(Ordering::Equal)
-        })
-    }
-}
-
-impl PartialOrd for Observation {
-    fn partial_cmp(&self, other: &Self) -> Option<Ordering> {
-        Some(self.cmp(other))
-    }
-}
-
-impl PartialEq for Observation {
-    fn eq(&self, other: &Self) -> bool {
-        self.cmp(other).is_eq()
-    }
-}
-
-impl Eq for Observation {}
-
-/// Everything about a track that depends on the sorted DoA sequence: the
-/// filter and the lifecycle's history. The lag buffer stores one after each DoA.
-#[derive(Clone, Copy, Debug)]
-struct Snapshot {
-    stamp: Stamp,
-    filter: CvState,
-    confirmation: Confirmation,
-    last_update: Option<Stamp>,
-    last_nis: Option<f64>,
-    nis_sum: f64,
-    applied: u64,
-    gated: u64,
-    unusable: u64,
-}
-
-/// The numbers a DoA step needs.
-#[derive(Clone, Copy, Debug)]
-struct StepParams {
-    noise: ProcessNoise,
-    doa: DoaNoiseModel,
-    rules: LifecycleRules,
-    association_gate: f64,
-    maintenance_gate: f64,
-}
-
-/// Predicts `prev` to `stamp` and applies (or gates) one DoA.
-fn step(prev: &Snapshot, stamp: Stamp, obs: &Observation, p: &StepParams) -> (Snapshot, UpdateOutcome) {
-    let predicted = prev.filter.predicted(stamp.seconds_since(prev.stamp).max(0.0), &p.noise);
-    let mut next = Snapshot { stamp, filter: predicted, ..*prev };
-    let inn = match doa_innovation(&predicted, &obs.ray, &p.doa) {
-        Ok(inn) => inn,
-        Err(u) => {
-            next.unusable += 1;
-            return (next, UpdateOutcome::Unusable(u));
-        }
-    };
-    let threshold = if prev.confirmation.is_confirmed() { p.maintenance_gate } else { p.association_gate };
-    next.last_nis = Some(inn.nis);
-    if !(inn.nis <= threshold) {
-        next.gated += 1;
-        return (next, UpdateOutcome::Gated { nis: inn.nis, threshold });
-    }
-    let Some(post) = joseph_update(&predicted, &inn) else {
-        next.unusable += 1;
-        return (next, UpdateOutcome::Unusable(Unusable::NonFinite));
-    };
-    next.filter = post;
-    next.applied += 1;
-    next.nis_sum += inn.nis;
-    next.last_update = Some(stamp);
-    next.confirmation.record(stamp, obs.robot, post.position_rms_m(), &p.rules);
-    (next, UpdateOutcome::Applied { nis: inn.nis })
 }
 
 #[derive(Clone, Debug)]

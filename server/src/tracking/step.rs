@@ -1,0 +1,109 @@
+//! What one DoA does to the replayable state of a track: predict to its stamp,
+//! linearize, gate, update (theory §4.2 B, §4.3). The lag buffer stores the
+//! resulting [`Snapshot`] after every DoA and re-runs [`step`] on replay.
+
+use std::cmp::Ordering;
+
+use soundmap_proto::Stamp;
+
+use super::UpdateOutcome;
+use super::filter::{CvState, DoaNoiseModel, ProcessNoise, Unusable, doa_innovation, joseph_update};
+use super::lifecycle::{Confirmation, LifecycleRules};
+use crate::ray::Ray;
+
+/// A DoA as buffered: the robot it came from and its ray. Ordered by robot
+/// then ray numbers (total order), so that equal stamps replay in one order.
+#[derive(Clone, Copy, Debug)]
+pub(super) struct Observation {
+    pub(super) robot: u32,
+    pub(super) ray: Ray,
+}
+
+impl Observation {
+    fn numbers(&self) -> [f64; 8] {
+        let (o, d) = (&self.ray.origin, &self.ray.direction);
+        [o.x, o.y, o.z, d.x, d.y, d.z, self.ray.sigma_rad, self.ray.origin_sigma_m]
+    }
+}
+
+impl Ord for Observation {
+    fn cmp(&self, other: &Self) -> Ordering {
+        self.robot.cmp(&other.robot).then_with(|| {
+            let (a, b) = (self.numbers(), other.numbers());
+            a.iter().zip(&b).map(|(x, y)| x.total_cmp(y)).find(|c| c.is_ne()).unwrap_or(Ordering::Equal)
+        })
+    }
+}
+
+impl PartialOrd for Observation {
+    fn partial_cmp(&self, other: &Self) -> Option<Ordering> {
+        Some(self.cmp(other))
+    }
+}
+
+impl PartialEq for Observation {
+    fn eq(&self, other: &Self) -> bool {
+        self.cmp(other).is_eq()
+    }
+}
+
+impl Eq for Observation {}
+
+/// Everything about a track that depends on the sorted DoA sequence: the
+/// filter and the lifecycle's history. The lag buffer stores one after each DoA.
+#[derive(Clone, Copy, Debug)]
+pub(super) struct Snapshot {
+    pub(super) stamp: Stamp,
+    pub(super) filter: CvState,
+    pub(super) confirmation: Confirmation,
+    pub(super) last_update: Option<Stamp>,
+    pub(super) last_nis: Option<f64>,
+    pub(super) nis_sum: f64,
+    pub(super) applied: u64,
+    pub(super) gated: u64,
+    pub(super) unusable: u64,
+}
+
+/// The numbers a DoA step needs.
+#[derive(Clone, Copy, Debug)]
+pub(super) struct StepParams {
+    pub(super) noise: ProcessNoise,
+    pub(super) doa: DoaNoiseModel,
+    pub(super) rules: LifecycleRules,
+    pub(super) association_gate: f64,
+    pub(super) maintenance_gate: f64,
+}
+
+/// Predicts `prev` to `stamp` and applies (or gates) one DoA.
+pub(super) fn step(
+    prev: &Snapshot,
+    stamp: Stamp,
+    obs: &Observation,
+    p: &StepParams,
+) -> (Snapshot, UpdateOutcome) {
+    let predicted = prev.filter.predicted(stamp.seconds_since(prev.stamp).max(0.0), &p.noise);
+    let mut next = Snapshot { stamp, filter: predicted, ..*prev };
+    let inn = match doa_innovation(&predicted, &obs.ray, &p.doa) {
+        Ok(inn) => inn,
+        Err(u) => {
+            next.unusable += 1;
+            return (next, UpdateOutcome::Unusable(u));
+        }
+    };
+    let threshold = if prev.confirmation.is_confirmed() { p.maintenance_gate } else { p.association_gate };
+    next.last_nis = Some(inn.nis);
+    if !(inn.nis <= threshold) {
+        next.gated += 1;
+        return (next, UpdateOutcome::Gated { nis: inn.nis, threshold });
+    }
+    let Some(post) = joseph_update(&predicted, &inn) else {
+        next.unusable += 1;
+        return (next, UpdateOutcome::Unusable(Unusable::NonFinite));
+    };
+    next.filter = post;
+    next.applied += 1;
+    next.nis_sum += inn.nis;
+    next.last_update = Some(stamp);
+    next.confirmation.record(stamp, obs.robot, post.position_rms_m(), &p.rules);
+    (next, UpdateOutcome::Applied { nis: inn.nis })
+}
