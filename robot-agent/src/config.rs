@@ -153,6 +153,17 @@ impl AgentConfig {
     }
 }
 
+/// Reads a pipeline settings file (the fields of `[pipeline]` at top level), for
+/// `soundmap-agent localize --pipeline FILE`. Errors name the file and field.
+pub fn load_pipeline(path: &Path) -> Result<PipelineConfig, AgentError> {
+    let text = std::fs::read_to_string(path)
+        .map_err(|source| AgentError::Io { path: path.to_path_buf(), source })?;
+    toml::from_str(&text).map_err(|e| {
+        let field = e.span().map(|s| field_at(&text, s.start)).unwrap_or_default();
+        config_error(path, &field, e.message().trim())
+    })
+}
+
 pub(crate) fn config_error(path: &Path, field: &str, message: impl Into<String>) -> AgentError {
     AgentError::Config { path: path.to_path_buf(), field: field.to_owned(), message: message.into() }
 }

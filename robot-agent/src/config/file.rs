@@ -237,6 +237,14 @@ impl AgentFile {
             }
         };
         let pose = self.pose.validate(&c)?;
+        if pose.source == PoseSource::JsonlStdin
+            && matches!(&doa, DoaSource::Own { audio, .. } if matches!(audio.input, AudioInput::Stdin { .. }))
+        {
+            return Err(c.err(
+                "pose.source",
+                "jsonl_stdin cannot share standard input with audio.source = \"stdin\"",
+            ));
+        }
         if !(self.navigator.arrival_tolerance_m.is_finite() && self.navigator.arrival_tolerance_m > 0.0) {
             return Err(c.err("navigator.arrival_tolerance_m", "must be positive"));
         }

@@ -1,0 +1,415 @@
+//! The `soundmap-agent` binary end to end: `localize` on generated WAV and raw
+//! recordings, `run` against a fake coordinator on loopback, and the errors a
+//! user sees.
+
+#[path = "data/synth.rs"]
+mod synth;
+
+use std::io::Write;
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output, Stdio};
+use std::sync::{Arc, Mutex};
+use std::time::Duration;
+
+use nalgebra::Vector3;
+use soundmap_agent::array::ArrayGeometry;
+use soundmap_proto::wire::{self, coordinator_message::Msg as Out, robot_message::Msg as In};
+use tokio::sync::mpsc;
+use tokio_stream::wrappers::ReceiverStream;
+use tonic::{Request, Response, Status};
+
+const BIN: &str = env!("CARGO_BIN_EXE_soundmap-agent");
+const FS: u32 = 16_000;
+const FRAMES: usize = 16_384;
+
+fn temp_dir(test: &str) -> PathBuf {
+    let d = std::env::temp_dir().join(format!("soundmap-cli-{}-{test}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&d);
+    std::fs::create_dir_all(&d).unwrap();
+    d
+}
+
+/// Azimuth 60°, elevation 30°: in respeaker-4's upper-hemisphere search region.
+fn truth() -> Vector3<f64> {
+    let (az, el) = (60f64.to_radians(), 30f64.to_radians());
+    Vector3::new(el.cos() * az.cos(), el.cos() * az.sin(), el.sin())
+}
+
+/// A white-noise plane wave from `truth()` at respeaker-4's microphones, 16-bit samples, interleaved.
+fn recording(channels_out: usize) -> Vec<i16> {
+    let array = ArrayGeometry::load("respeaker-4").unwrap();
+    let mut rng = synth::rng(7);
+    let mut x = synth::plane_wave(&synth::positions(&array), &truth(), FS as f64, FRAMES, &mut rng);
+    synth::add_sensor_noise(&mut x, 20.0, &mut rng);
+    let mut out = Vec::with_capacity(FRAMES * channels_out);
+    for t in 0..FRAMES {
+        for c in 0..channels_out {
+            out.push((x[c % 4][t] * 0.1 * 32_767.0).round().clamp(-32_768.0, 32_767.0) as i16);
+        }
+    }
+    out
+}
+
+fn write_wav(path: &Path, channels: usize) {
+    let spec = hound::WavSpec {
+        channels: channels as u16,
+        sample_rate: FS,
+        bits_per_sample: 16,
+        sample_format: hound::SampleFormat::Int,
+    };
+    let mut w = hound::WavWriter::create(path, spec).unwrap();
+    for s in recording(channels) {
+        w.write_sample(s).unwrap();
+    }
+    w.finalize().unwrap();
+}
+
+fn agent(args: &[&str], stdin: Option<Vec<u8>>) -> Output {
+    let mut child = Command::new(BIN)
+        .args(args)
+        .stdin(if stdin.is_some() { Stdio::piped() } else { Stdio::null() })
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    if let Some(bytes) = stdin {
+        let mut s = child.stdin.take().unwrap();
+        std::thread::spawn(move || {
+            let _ = s.write_all(&bytes);
+        });
+    }
+    child.wait_with_output().unwrap()
+}
+
+fn lines(text: &str) -> Vec<serde_json::Value> {
+    text.lines().map(|l| serde_json::from_str(l).unwrap_or_else(|e| panic!("{e}: {l}"))).collect()
+}
+
+fn direction(v: &serde_json::Value) -> Vector3<f64> {
+    Vector3::new(v["x"].as_f64().unwrap(), v["y"].as_f64().unwrap(), v["z"].as_f64().unwrap())
+}
+
+#[test]
+fn localize_writes_one_line_per_hop_with_the_source_direction() {
+    let dir = temp_dir("localize");
+    let wav = dir.join("rec.wav");
+    write_wav(&wav, 4);
+    let out_path = dir.join("out.jsonl");
+    let o = agent(
+        &[
+            "localize",
+            "--array",
+            "respeaker-4",
+            "--input",
+            wav.to_str().unwrap(),
+            "--start-ns",
+            "1000000000",
+            "--out",
+            out_path.to_str().unwrap(),
+            "--potentials",
+        ],
+        None,
+    );
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let hops = lines(&std::fs::read_to_string(&out_path).unwrap());
+    assert_eq!(hops.len(), FRAMES / 128);
+    let stamps: Vec<i64> = hops.iter().map(|h| h["stamp_ns"].as_i64().unwrap()).collect();
+    for (k, s) in stamps.iter().enumerate() {
+        // Hop k starts at sample 128·k (8 ms); the DoA is stamped at the middle of the
+        // 256-sample frame that ends with it: 128·k + 128 − 128 samples after sample 0.
+        assert_eq!(*s, 1_000_000_000 + k as i64 * 8_000_000, "hop {k}");
+    }
+    let with_sources: Vec<&serde_json::Value> =
+        hops.iter().filter(|h| !h["sources"].as_array().unwrap().is_empty()).collect();
+    assert!(
+        with_sources.len() > hops.len() / 2,
+        "{} of {} hops have a confirmed source",
+        with_sources.len(),
+        hops.len()
+    );
+    for h in &with_sources {
+        let s = &h["sources"][0];
+        let d = direction(s);
+        assert!((d.norm() - 1.0).abs() < 1e-9);
+        assert!(synth::angle_deg(&d, &truth()) < 5.0, "{h}");
+        assert!((0.0..=1.0).contains(&s["activity"].as_f64().unwrap()));
+        assert!(s["id"].as_u64().is_some());
+    }
+    for h in &hops[2..] {
+        let p = h["potentials"].as_array().unwrap();
+        assert!(!p.is_empty() && p[0]["energy"].as_f64().is_some(), "{h}");
+    }
+}
+
+#[test]
+fn localize_reads_raw_pcm_from_stdin_like_the_wav() {
+    let dir = temp_dir("stdin");
+    let wav = dir.join("rec.wav");
+    write_wav(&wav, 4);
+    let from_wav = agent(&["localize", "--array", "respeaker-4", "--input", wav.to_str().unwrap()], None);
+    assert!(from_wav.status.success(), "{}", String::from_utf8_lossy(&from_wav.stderr));
+    let raw: Vec<u8> = recording(4).iter().flat_map(|s| s.to_le_bytes()).collect();
+    let args = [
+        "localize",
+        "--array",
+        "respeaker-4",
+        "--input",
+        "-",
+        "--format",
+        "s16le",
+        "--channels",
+        "4",
+        "--rate",
+        "16000",
+    ];
+    let from_stdin = agent(&args, Some(raw));
+    assert!(from_stdin.status.success(), "{}", String::from_utf8_lossy(&from_stdin.stderr));
+    assert!(!from_wav.stdout.is_empty());
+    assert_eq!(from_wav.stdout, from_stdin.stdout);
+    // Six channels in the stream, the array's four picked (reordered back) by a channel map.
+    let raw6: Vec<u8> = recording(4)
+        .chunks(4)
+        .flat_map(|f| [0, f[3], f[0], f[1], f[2], 0])
+        .flat_map(|s: i16| s.to_le_bytes())
+        .collect();
+    let args = [
+        "localize",
+        "--array",
+        "respeaker-4",
+        "--input",
+        "-",
+        "--format",
+        "s16le",
+        "--channels",
+        "6",
+        "--rate",
+        "16000",
+        "--channel-map",
+        "2,3,4,1",
+    ];
+    let mapped = agent(&args, Some(raw6));
+    assert!(mapped.status.success(), "{}", String::from_utf8_lossy(&mapped.stderr));
+    assert_eq!(from_wav.stdout, mapped.stdout);
+}
+
+#[test]
+fn localize_errors_name_the_file_and_problem() {
+    let dir = temp_dir("errors");
+    let wav = dir.join("three.wav");
+    write_wav(&wav, 3);
+    let cases: Vec<(Vec<String>, Vec<String>)> = vec![
+        (
+            vec!["--array".into(), "respeaker-4".into(), "--input".into(), wav.display().to_string()],
+            vec![wav.display().to_string(), "3 channels, expected 4".into()],
+        ),
+        (
+            vec![
+                "--array".into(),
+                "respeaker-4".into(),
+                "--input".into(),
+                "x.raw".into(),
+                "--rate".into(),
+                "16000".into(),
+            ],
+            vec!["x.raw".into(), "needs --format, --channels and --rate".into()],
+        ),
+        (
+            vec!["--array".into(), "no-such-array".into(), "--input".into(), wav.display().to_string()],
+            vec!["unknown array preset".into()],
+        ),
+        (
+            vec![
+                "--array".into(),
+                "respeaker-4".into(),
+                "--input".into(),
+                "y.raw".into(),
+                "--format".into(),
+                "s16le".into(),
+                "--channels".into(),
+                "4".into(),
+                "--rate".into(),
+                "16000".into(),
+            ],
+            vec!["y.raw".into()],
+        ),
+    ];
+    for (args, wanted) in cases {
+        let mut all = vec!["localize".to_owned()];
+        all.extend(args);
+        let refs: Vec<&str> = all.iter().map(String::as_str).collect();
+        let o = agent(&refs, None);
+        let stderr = String::from_utf8_lossy(&o.stderr);
+        assert!(!o.status.success(), "{all:?} succeeded");
+        for w in wanted {
+            assert!(stderr.contains(&w), "{all:?}: {stderr}");
+        }
+    }
+    let o = agent(&["localize", "--array", "respeaker-4", "--input", "a.raw", "--format", "s8"], None);
+    assert!(!o.status.success());
+    assert!(String::from_utf8_lossy(&o.stderr).contains("unknown raw sample format"));
+}
+
+// ---------------------------------------------------------------- run
+
+#[derive(Debug, Default)]
+struct Seen {
+    hello: Option<wire::Hello>,
+    observations: Vec<wire::Observation>,
+    acks: Vec<wire::CommandAck>,
+}
+
+#[derive(Clone, Default)]
+struct Coordinator(Arc<Mutex<Seen>>);
+
+#[tonic::async_trait]
+impl wire::robot_link_server::RobotLink for Coordinator {
+    type ConnectStream = ReceiverStream<Result<wire::CoordinatorMessage, Status>>;
+
+    async fn connect(
+        &self,
+        request: Request<tonic::Streaming<wire::RobotMessage>>,
+    ) -> Result<Response<Self::ConnectStream>, Status> {
+        let mut inbound = request.into_inner();
+        let Some(wire::RobotMessage { msg: Some(In::Hello(hello)) }) = inbound.message().await? else {
+            return Err(Status::invalid_argument("hello first"));
+        };
+        let (tx, rx) = mpsc::channel(64);
+        let welcome = wire::Welcome { robot_id: hello.robot_id.clone(), ..Default::default() };
+        tx.send(Ok(wire::CoordinatorMessage { msg: Some(Out::Welcome(welcome)) })).await.unwrap();
+        self.0.lock().unwrap().hello = Some(hello);
+        let seen = self.0.clone();
+        tokio::spawn(async move {
+            while let Ok(Some(wire::RobotMessage { msg: Some(m) })) = inbound.message().await {
+                match m {
+                    In::Observation(o) => {
+                        let first = seen.lock().unwrap().observations.is_empty();
+                        let seq = o.sequence;
+                        seen.lock().unwrap().observations.push(o);
+                        if first {
+                            let c = wire::RepositionCommand {
+                                command_id: 9,
+                                goal_map_from_base: Some(soundmap_proto::pose_to_wire(
+                                    &nalgebra::Isometry3::translation(2.0, 1.0, 0.0),
+                                )),
+                                look_at_in_map_m: Some(wire::Vec3 { x: 3.0, y: 3.0, z: 1.0 }),
+                                reason: wire::RepositionReason::GdopHigh as i32,
+                                ..Default::default()
+                            };
+                            let _ =
+                                tx.send(Ok(wire::CoordinatorMessage { msg: Some(Out::Reposition(c)) })).await;
+                        }
+                        let ack = wire::ObservationAck { up_to_sequence: seq };
+                        let _ = tx
+                            .send(Ok(wire::CoordinatorMessage { msg: Some(Out::ObservationAck(ack)) }))
+                            .await;
+                    }
+                    In::CommandAck(a) => seen.lock().unwrap().acks.push(a),
+                    _ => {}
+                }
+            }
+        });
+        Ok(Response::new(ReceiverStream::new(rx)))
+    }
+}
+
+#[tokio::test(flavor = "multi_thread")]
+async fn run_streams_tracked_doas_with_interpolated_poses_to_the_coordinator() {
+    let dir = temp_dir("run");
+    write_wav(&dir.join("rec.wav"), 4);
+    // The robot drives along x at 1 m/s; file time 10.0 s is audio sample 0.
+    let mut tum = String::from("# t tx ty tz qx qy qz qw\n");
+    for k in 0..=30 {
+        let t = 10.0 + k as f64 * 0.05;
+        tum += &format!("{t:.2} {:.3} 0 0 0 0 0 1\n", k as f64 * 0.05);
+    }
+    std::fs::write(dir.join("traj.tum"), tum).unwrap();
+    let coordinator = Coordinator::default();
+    let listener = tokio::net::TcpListener::bind("127.0.0.1:0").await.unwrap();
+    let addr = listener.local_addr().unwrap();
+    let incoming =
+        futures::stream::unfold(listener, |l| async move { Some((l.accept().await.map(|(s, _)| s), l)) });
+    let server = tonic::transport::Server::builder()
+        .add_service(wire::robot_link_server::RobotLinkServer::new(coordinator.clone()))
+        .serve_with_incoming(incoming);
+    let server = tokio::spawn(server);
+    let start_ns: i64 = 1_700_000_000_000_000_000;
+    let config = format!(
+        r#"robot_id = "cli-robot"
+[coordinator]
+endpoint = "http://{addr}"
+[array]
+preset = "respeaker-4"
+[audio]
+source = "wav"
+path = "rec.wav"
+start_ns = {start_ns}
+pace = "asap"
+[pose]
+source = "tum"
+path = "traj.tum"
+start_s = 10.0
+[navigator]
+path = "goals.jsonl"
+[link]
+heartbeat_interval_ms = 100
+"#
+    );
+    std::fs::write(dir.join("agent.toml"), config).unwrap();
+    let cfg = dir.join("agent.toml");
+    let out = tokio::task::spawn_blocking(move || agent(&["run", "--config", cfg.to_str().unwrap()], None));
+    let out = tokio::time::timeout(Duration::from_secs(60), out).await.expect("agent run timed out").unwrap();
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    server.abort();
+
+    let seen = coordinator.0.lock().unwrap();
+    let hello = seen.hello.as_ref().expect("hello");
+    assert_eq!(hello.robot_id, "cli-robot");
+    let array = hello.array.as_ref().unwrap();
+    assert_eq!((array.microphone_count, array.preset.as_str()), (4, "respeaker-4"));
+    assert_eq!(array.microphone_positions_m.len(), 4);
+    let obs = &seen.observations;
+    assert!(obs.len() > 40, "{} observations", obs.len());
+    for (k, o) in obs.iter().enumerate() {
+        assert_eq!(o.sequence, k as u64 + 1);
+        // The pose is the trajectory interpolated at the DoA stamp: x = 1 m/s · t.
+        let t = (o.stamp_ns - start_ns) as f64 * 1e-9;
+        let x = o.map_from_base.as_ref().unwrap().translation_m.as_ref().unwrap().x;
+        assert!((x - t).abs() < 1e-6, "observation {k}: x {x} at t {t}");
+        if let Some(d) = o.doas.first() {
+            let v = d.direction_in_array.as_ref().unwrap();
+            assert!(synth::angle_deg(&Vector3::new(v.x, v.y, v.z), &truth()) < 5.0);
+        }
+    }
+    assert!(obs.windows(2).all(|w| w[0].stamp_ns < w[1].stamp_ns));
+    assert!(obs.iter().filter(|o| !o.doas.is_empty()).count() > 40);
+    // The command sent after the first observation reached the navigator and was acknowledged.
+    assert_eq!(seen.acks.len(), 1);
+    assert!(seen.acks[0].accepted && seen.acks[0].command_id == 9);
+    let goals = lines(&std::fs::read_to_string(dir.join("goals.jsonl")).unwrap());
+    assert_eq!(goals[0]["type"], "goal");
+    assert_eq!((goals[0]["command_id"].as_u64(), goals[0]["x"].as_f64()), (Some(9), Some(2.0)));
+}
+
+#[test]
+fn run_config_errors_name_the_file_and_field() {
+    let dir = temp_dir("run-errors");
+    let bad = dir.join("agent.toml");
+    let example =
+        std::fs::read_to_string(Path::new(env!("CARGO_MANIFEST_DIR")).join("../deploy/agent.example.toml"))
+            .unwrap()
+            .replacen("pace = \"realtime\"", "pace = \"realtime\"\nchannels = 16", 1);
+    std::fs::write(&bad, example).unwrap();
+    let o = agent(&["run", "--config", bad.to_str().unwrap()], None);
+    let stderr = String::from_utf8_lossy(&o.stderr);
+    assert!(!o.status.success());
+    assert!(stderr.contains(&format!("{}: audio.channels: not used for WAV", bad.display())), "{stderr}");
+    // A valid config whose audio file is missing fails before anything starts.
+    let example =
+        std::fs::read_to_string(Path::new(env!("CARGO_MANIFEST_DIR")).join("../deploy/agent.example.toml"))
+            .unwrap();
+    std::fs::write(&bad, example).unwrap();
+    let o = agent(&["run", "--config", bad.to_str().unwrap()], None);
+    let stderr = String::from_utf8_lossy(&o.stderr);
+    assert!(!o.status.success());
+    assert!(stderr.contains("recordings/pioneer-1.wav"), "{stderr}");
+}
