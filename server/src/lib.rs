@@ -9,13 +9,27 @@
 //! - [`stats`]: χ² quantiles for gates.
 //! - [`tracking`]: 3D constant-velocity Kalman tracking of a source from DoAs.
 //! - [`planner`]: where robots should go to keep θ in band (Clarabel).
+//! - [`coordinator`]: the state machine tying robots, alignment and estimates together.
+//!
+//! Shell:
+//! - [`service`]: the gRPC services (robot link, monitoring, health) around one
+//!   task that owns the [`coordinator::Coordinator`].
+//! - [`config`]: `coordinator.toml`. [`clock`]: system or driven time.
+//! - [`error`]: the crate's error type.
 
+pub mod clock;
+pub mod config;
+pub mod coordinator;
+pub mod error;
 pub mod planner;
 pub mod ray;
+pub mod service;
 pub mod stats;
 pub mod tracking;
 pub mod triangulation;
 pub mod uncertainty;
 
+pub use config::CoordinatorConfig;
+pub use error::ServerError;
 pub use ray::Ray;
 pub use triangulation::{Triangulation, TriangulationConfig, triangulate};

@@ -55,6 +55,16 @@ use crate::uncertainty::{GeometryQuality, Sensor, assess};
 /// Tolerance of the checks applied to waypoints (m).
 const CHECK_TOL_M: f64 = 1e-6;
 
+/// This cycle's checked waypoints.
+struct Waypoints {
+    /// Per robot (map xy, m).
+    spots: Vec<Point2<f64>>,
+    /// The separations they were checked against.
+    separations: Vec<Separation>,
+    used_fallback: bool,
+    why_fallback: Option<String>,
+}
+
 /// The placement planner: configuration, free space and hysteresis memory.
 #[derive(Clone, Debug)]
 pub struct Planner {
@@ -123,7 +133,12 @@ impl Planner {
                 base_xy: r.base_xy(),
                 base_from_array: r.base_from_array,
                 sigma_rad: r.sigma_rad,
-                previous_bearing_rad: self.memory.bearing_of(&r.id),
+                // The previous target bearing binds only a robot that is still on its
+                // way there (within 45°): one pushed elsewhere starts afresh.
+                previous_bearing_rad: self.memory.bearing_of(&r.id).filter(|b| {
+                    let d = r.base_xy() - centre;
+                    pose::wrap(d.y.atan2(d.x) - b).abs() < std::f64::consts::FRAC_PI_4
+                }),
             })
             .collect();
         let settings = PatternSettings {
@@ -165,6 +180,10 @@ impl Planner {
             improvement,
             busy: robots.iter().any(|r| r.active_goal.is_some()),
             goals_valid: self.active_goals_valid(&centre, robots),
+            idle_out_of_ring: robots.iter().any(|r| {
+                let rho = (r.base_xy() - centre).norm();
+                r.active_goal.is_none() && !(rho >= cfg.min_range_m && rho <= cfg.max_range_m)
+            }),
             source_moved_m,
         };
         let reason = match decide(cfg, self.memory.engaged, &situation) {
@@ -178,19 +197,18 @@ impl Planner {
         };
 
         // This cycle's waypoints.
-        let (waypoints, used_fallback, solver_note) =
-            match self.waypoints(&src, robots, &per_robot, half, step) {
-                Ok(w) => w,
-                Err(reason) => return PlanOutcome::Infeasible(reason),
-            };
+        let cycle = match self.waypoints(&src, robots, &per_robot, half, step) {
+            Ok(w) => w,
+            Err(reason) => return PlanOutcome::Infeasible(reason),
+        };
+        let waypoints = &cycle.spots;
         let after: Vec<Sensor> = robots
             .iter()
-            .zip(&waypoints)
+            .zip(waypoints)
             .map(|(r, w)| sensor_at(w, &src, &r.base_from_array, r.sigma_rad))
             .collect();
         let predicted = assess(&after, &src);
-        let goals =
-            self.goals(&src, robots, &per_robot, &waypoints, &predicted, reason, used_fallback, solver_note);
+        let goals = self.goals(&src, robots, &per_robot, &cycle, &predicted, reason);
         if goals.is_empty() {
             self.memory.engaged = None;
             return PlanOutcome::Hold(HoldReason::AtBestFeasible {
@@ -299,7 +317,7 @@ impl Planner {
         per_robot: &[RobotCycle],
         half: f64,
         step: f64,
-    ) -> Result<(Vec<Point2<f64>>, bool, Option<String>), InfeasibleReason> {
+    ) -> Result<Waypoints, InfeasibleReason> {
         let cfg = &self.config;
         let centre = Point2::new(src.x, src.y);
         let p0: Vec<Point2<f64>> = per_robot.iter().map(|c| c.p0).collect();
@@ -346,7 +364,12 @@ impl Planner {
         if why_not_qp.is_none() {
             match qp::solve(&centre, &cycle_robots, &seps, cfg.goal_weight) {
                 QpOutcome::Solved(w) if self.check(&centre, per_robot, &w, &seps, step) => {
-                    return Ok((w, false, None));
+                    return Ok(Waypoints {
+                        spots: w,
+                        separations: seps,
+                        used_fallback: false,
+                        why_fallback: None,
+                    });
                 }
                 QpOutcome::Solved(_) => {
                     why_not_qp = Some("convex solution failed the constraint check".into())
@@ -372,7 +395,7 @@ impl Planner {
         let why = why_not_qp.unwrap_or_default();
         match sampling::search(src, &sample_robots, &seps, &self.free, band, &cfg.sampling) {
             SampleOutcome::Found(w) if self.check(&centre, per_robot, &w, &seps, step) => {
-                Ok((w, true, Some(why)))
+                Ok(Waypoints { spots: w, separations: seps, used_fallback: true, why_fallback: Some(why) })
             }
             SampleOutcome::Found(_) => Err(InfeasibleReason::NoJointPlacement {
                 detail: format!("{why}; sampled placement failed the constraint check"),
@@ -435,37 +458,59 @@ impl Planner {
         src: &Point3<f64>,
         robots: &[RobotState],
         per_robot: &[RobotCycle],
-        waypoints: &[Point2<f64>],
+        cycle: &Waypoints,
         predicted: &GeometryQuality,
         reason: RepositionReason,
-        used_fallback: bool,
-        solver_note: Option<String>,
     ) -> Vec<Goal> {
+        let (waypoints, seps) = (&cycle.spots, &cycle.separations);
         let tol = self.config.goal_tolerance_m;
+        let mut send: Vec<bool> = robots
+            .iter()
+            .enumerate()
+            .map(|(i, r)| {
+                let w = waypoints[i];
+                let moves = (w - per_robot[i].p0).norm() > tol;
+                let replaces = r.active_goal.is_some_and(|g| {
+                    (Point2::new(g.translation.vector.x, g.translation.vector.y) - w).norm() > tol
+                });
+                moves || replaces
+            })
+            .collect();
+        // A robot left where it is must still keep its separations from the others' goals.
+        loop {
+            let at = |k: usize, send: &[bool]| if send[k] { waypoints[k] } else { per_robot[k].p0 };
+            let short = seps.iter().find(|s| {
+                !(send[s.i] && send[s.j]) && (at(s.i, &send) - at(s.j, &send)).norm() < s.min_m - CHECK_TOL_M
+            });
+            match short {
+                Some(s) => {
+                    send[s.i] = true;
+                    send[s.j] = true;
+                }
+                None => break,
+            }
+        }
         let mut goals = Vec::new();
         for (i, r) in robots.iter().enumerate() {
             let w = waypoints[i];
-            let moves = (w - per_robot[i].p0).norm() > tol;
-            let replaces = r.active_goal.is_some_and(|g| {
-                (Point2::new(g.translation.vector.x, g.translation.vector.y) - w).norm() > tol
-            });
-            if !(moves || replaces) {
+            if !send[i] {
                 continue;
             }
             let mut notes: Vec<String> = per_robot[i].note.iter().cloned().collect();
-            if used_fallback {
-                notes.push(format!("sampling fallback: {}", solver_note.as_deref().unwrap_or("")));
+            if cycle.used_fallback {
+                notes.push(format!("sampling fallback: {}", cycle.why_fallback.as_deref().unwrap_or("")));
             }
             goals.push(Goal {
                 robot: i,
                 robot_id: r.id.clone(),
                 map_from_base: facing_pose(&w, src),
                 look_at_in_map: *src,
+                target_in_map: per_robot[i].target.unwrap_or(w),
                 predicted_theta_deg: predicted.theta_deg,
                 predicted_gdop: predicted.gdop,
                 predicted_rms_m: predicted.rms_m,
                 reason,
-                used_fallback,
+                used_fallback: cycle.used_fallback,
                 note: (!notes.is_empty()).then(|| notes.join("; ")),
             });
         }

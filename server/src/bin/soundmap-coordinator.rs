@@ -1,2 +1,78 @@
-//! soundmap-coordinator binary.
-fn main() {}
+//! `soundmap-coordinator`: the coordinator service.
+//!
+//! ```text
+//! soundmap-coordinator [--config FILE] [--listen ADDR] [--estimates-jsonl FILE]
+//! ```
+
+use std::path::PathBuf;
+use std::sync::Arc;
+
+use anyhow::Context;
+use clap::Parser;
+use soundmap_server::clock::SystemClock;
+use soundmap_server::{CoordinatorConfig, service};
+
+/// Triangulates sound sources from the bearings robots stream to it.
+#[derive(Debug, Parser)]
+#[command(name = "soundmap-coordinator", version)]
+struct Args {
+    /// Configuration file (TOML). Every key is optional; unknown keys are errors.
+    #[arg(long, value_name = "FILE")]
+    config: Option<PathBuf>,
+    /// Address to listen on (overrides `listen` in the config), e.g. 0.0.0.0:50051.
+    #[arg(long, value_name = "ADDR")]
+    listen: Option<std::net::SocketAddr>,
+    /// Append estimates to this JSON-lines file (overrides `output.estimates_jsonl`).
+    #[arg(long, value_name = "FILE")]
+    estimates_jsonl: Option<PathBuf>,
+    /// Check the configuration and exit.
+    #[arg(long)]
+    check: bool,
+}
+
+#[tokio::main]
+async fn main() -> anyhow::Result<()> {
+    tracing_subscriber::fmt()
+        .with_env_filter(
+            tracing_subscriber::EnvFilter::try_from_default_env().unwrap_or_else(|_| "info".into()),
+        )
+        .with_writer(std::io::stderr)
+        .init();
+    let args = Args::parse();
+    let mut config = match &args.config {
+        Some(path) => CoordinatorConfig::from_file(path)?,
+        None => CoordinatorConfig::default(),
+    };
+    if let Some(listen) = args.listen {
+        config.listen = listen;
+    }
+    if let Some(path) = args.estimates_jsonl {
+        config.output.estimates_jsonl = Some(path);
+    }
+    if args.check {
+        println!("configuration OK");
+        return Ok(());
+    }
+    let listener = tokio::net::TcpListener::bind(config.listen)
+        .await
+        .with_context(|| format!("cannot listen on {}", config.listen))?;
+    let running = service::start(config, Arc::new(SystemClock), listener).await?;
+    tracing::info!("soundmap-coordinator {} listening on {}", env!("CARGO_PKG_VERSION"), running.local_addr);
+    tokio::select! {
+        r = shutdown_signal() => r?,
+        // The server only ends by itself on an error, which `wait` returns.
+        _ = std::future::pending::<()>() => {}
+    }
+    tracing::info!("shutting down");
+    running.shutdown().await?;
+    Ok(())
+}
+
+async fn shutdown_signal() -> anyhow::Result<()> {
+    let mut term = tokio::signal::unix::signal(tokio::signal::unix::SignalKind::terminate())?;
+    tokio::select! {
+        r = tokio::signal::ctrl_c() => r?,
+        _ = term.recv() => {}
+    }
+    Ok(())
+}

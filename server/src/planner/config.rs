@@ -80,7 +80,8 @@ pub struct PlannerConfig {
     /// the det J ratio inside stays ≥ cos²2δ. Default 15.
     pub wedge_half_width_deg: f64,
     /// Weight λ_g of ‖p − g‖² against travel ‖p − p⁰‖² in the per-cycle QP; an
-    /// unconstrained robot moves λ_g/(1 + λ_g) of the way. Default 10.
+    /// unconstrained robot moves λ_g/(1 + λ_g) of the way. Default 50 (98 %): the
+    /// travel term mostly decides where on a binding constraint the robot stops.
     pub goal_weight: f64,
     /// Re-plan a good geometry when √tr J⁻¹ would shrink by at least this fraction. Default 0.2.
     pub improvement_threshold: f64,
@@ -103,7 +104,8 @@ pub struct PlannerConfig {
     /// Rotation grid of the target pattern (degrees). Default 5.
     pub pattern_rotation_step_deg: f64,
     /// Cost per metre of arc between a robot's new and previous target bearing,
-    /// against metres of travel; keeps the pattern from flipping. Default 0.5.
+    /// against metres of travel; above 1 the pattern keeps its bearings rather than
+    /// rotating toward lagging robots (no drift, no flips). Default 2.
     pub pattern_switch_weight: f64,
     /// Cost, in metres of travel, of a target spot that is not free. Default 3.0.
     pub blocked_spot_penalty_m: f64,
@@ -131,7 +133,7 @@ impl Default for PlannerConfig {
             robot_radius_m: 0.25,
             clearance_m: 0.1,
             wedge_half_width_deg: 15.0,
-            goal_weight: 10.0,
+            goal_weight: 50.0,
             improvement_threshold: 0.2,
             improvement_release: 0.1,
             theta_hysteresis_deg: 5.0,
@@ -141,7 +143,7 @@ impl Default for PlannerConfig {
             max_source_rms_m: 3.0,
             goal_tolerance_m: 0.1,
             pattern_rotation_step_deg: 5.0,
-            pattern_switch_weight: 0.5,
+            pattern_switch_weight: 2.0,
             blocked_spot_penalty_m: 3.0,
             pattern_info_weight_m: 1.0,
             sampling: SamplingConfig::default(),
@@ -247,6 +249,16 @@ impl PlannerConfig {
         }
         if self.gdop_hysteresis >= 1.0 {
             return err("gdop_hysteresis", "is a fraction and must be below 1".into());
+        }
+        // Grids finer than these only burn time.
+        for (field, v, min) in [
+            ("pattern_rotation_step_deg", self.pattern_rotation_step_deg, 0.1),
+            ("sampling.bearing_step_deg", self.sampling.bearing_step_deg, 0.1),
+            ("sampling.range_step_m", self.sampling.range_step_m, 0.01),
+        ] {
+            if v < min {
+                return err(field, format!("must be ≥ {min}, is {v}"));
+            }
         }
         if self.sampling.max_sweeps == 0 {
             return err("sampling.max_sweeps", "must be ≥ 1".into());

@@ -11,6 +11,8 @@
 //! - Robots driving to goals keep them while the goals stay valid and the
 //!   source has moved less than `follow_distance_m` from where it was when they
 //!   were planned; the target pattern is sticky (see [`bearings`](super::bearings)).
+//! - An idle robot the source has come closer to than r_min (or left beyond
+//!   r_max) is re-tasked even when θ and GDOP are fine.
 //! - Re-tasking happens at most once per planning period.
 
 use nalgebra::Point3;
@@ -36,7 +38,7 @@ impl Memory {
     /// Seconds to wait before re-tasking is allowed, if any.
     pub fn wait_s(&self, now: Stamp, period_s: f64) -> Option<f64> {
         let since = now.seconds_since(self.last_plan_at?);
-        (since >= 0.0 && since < period_s).then(|| period_s - since)
+        (since >= 0.0 && since < period_s).then_some(period_s - since)
     }
 
     /// Previous target bearing of robot `id`.
@@ -60,6 +62,9 @@ pub(crate) struct Situation {
     pub goals_valid: bool,
     /// Horizontal distance the source moved since the last plan (m; ∞ when none).
     pub source_moved_m: f64,
+    /// A robot without a goal is inside the keep-out radius or beyond r_max
+    /// (the source came too close or walked away).
+    pub idle_out_of_ring: bool,
 }
 
 /// Re-plan (and why) or hold.
@@ -107,6 +112,7 @@ pub(crate) fn decide(cfg: &PlannerConfig, engaged: Option<RepositionReason>, s: 
     }
     match trigger(cfg, engaged, s) {
         Some(r) => Decision::Replan(r),
+        None if s.idle_out_of_ring => Decision::Replan(RepositionReason::FollowSource),
         None => Decision::Hold(HoldReason::GeometryGood {
             theta_deg: s.theta_deg,
             gdop: s.gdop,
@@ -120,7 +126,15 @@ mod tests {
     use super::*;
 
     fn situation(theta_deg: f64, gdop: f64, improvement: f64) -> Situation {
-        Situation { theta_deg, gdop, improvement, busy: false, goals_valid: true, source_moved_m: 0.0 }
+        Situation {
+            theta_deg,
+            gdop,
+            improvement,
+            busy: false,
+            goals_valid: true,
+            source_moved_m: 0.0,
+            idle_out_of_ring: false,
+        }
     }
 
     #[test]
@@ -167,6 +181,11 @@ mod tests {
         let mut s = situation(90.0, 1.6, 0.0);
         s.busy = true;
         s.goals_valid = false;
+        assert_eq!(decide(&cfg, None, &s), Decision::Replan(RepositionReason::FollowSource));
+        // An idle robot the source walked up to must step back although θ is fine.
+        let mut s = situation(90.0, 1.6, 0.0);
+        assert!(matches!(decide(&cfg, None, &s), Decision::Hold(HoldReason::GeometryGood { .. })));
+        s.idle_out_of_ring = true;
         assert_eq!(decide(&cfg, None, &s), Decision::Replan(RepositionReason::FollowSource));
     }
 

@@ -3,7 +3,7 @@
 
 use std::fmt;
 
-use nalgebra::{Isometry3, Point3};
+use nalgebra::{Isometry3, Point2, Point3};
 use soundmap_proto::{RepositionReason, RobotId};
 
 /// A goal for one robot's base.
@@ -17,6 +17,10 @@ pub struct Goal {
     pub map_from_base: Isometry3<f64>,
     /// The point the robot faces on arrival (the predicted source, map frame, m).
     pub look_at_in_map: Point3<f64>,
+    /// Where the robot is ultimately heading: its spot in the target pattern
+    /// (map xy, m). The goal is this spot when it is within one step, else a
+    /// waypoint toward it.
+    pub target_in_map: Point2<f64>,
     /// Best pairwise θ at the source once all goals of this plan are reached (degrees).
     pub predicted_theta_deg: f64,
     /// GDOP once all goals of this plan are reached.

@@ -2,9 +2,9 @@
 //! infeasible or fails.
 //!
 //! Candidates per robot: a polar grid around the source (bearing and range
-//! steps from [`SamplingConfig`]) plus the robot's own position and this
-//! cycle's heading point, kept when free, within one step and inside the
-//! cycle's range bounds. A tuple of spots is scored by
+//! steps from [`SamplingConfig`]), a square grid of step/6 (0.05–0.25 m) over
+//! the robot's step disc, its own position and this cycle's heading point,
+//! kept when free, within one step and inside the cycle's range bounds. A tuple of spots is scored by
 //!
 //! ```text
 //! ln tr J⁻¹  +  w_travel Σ‖qᵢ − pᵢ⁰‖  +  w_band · (degrees the best pairwise θ lies outside the band)
@@ -51,6 +51,9 @@ pub(crate) enum SampleOutcome {
     NoJoint,
 }
 
+/// Separation shortfall still counted as kept (m), for rounding.
+const SEPARATION_TOL_M: f64 = 1e-9;
+
 struct Candidate {
     spot: Point2<f64>,
     fisher: Matrix3<f64>,
@@ -90,7 +93,7 @@ pub(crate) fn search(
         scorer.gauss_seidel(robots)
     };
     match picks {
-        Some(p) if scorer.separation_violation(&p) == 0.0 => {
+        Some(p) if scorer.separation_violation(&p) <= SEPARATION_TOL_M => {
             SampleOutcome::Found(p.iter().enumerate().map(|(i, &k)| cands[i][k].spot).collect())
         }
         _ => SampleOutcome::NoJoint,
@@ -113,6 +116,15 @@ fn candidates(
         let phi = (a as f64 * 360.0 / n_b as f64).to_radians();
         for k in 0..=n_r {
             spots.push(polar(centre, phi, lo + (hi - lo) * k as f64 / n_r as f64));
+        }
+    }
+    // A finer square grid over the step disc, so that a robot in a tight spot
+    // still has nearby choices (the polar grid is coarse far from the source).
+    let h = (r.step / 6.0).clamp(0.05, 0.25);
+    let m = (r.step / h).floor() as i32;
+    for a in -m..=m {
+        for b in -m..=m {
+            spots.push(r.p0 + nalgebra::Vector2::new(a as f64 * h, b as f64 * h));
         }
     }
     spots.push(r.p0);
@@ -188,7 +200,7 @@ impl Scorer<'_> {
         for a in 0..self.cands[0].len() {
             for b in 0..self.cands[1].len() {
                 let picks = [a, b];
-                if self.separation_violation(&picks) > 0.0 {
+                if self.separation_violation(&picks) > SEPARATION_TOL_M {
                     continue;
                 }
                 let s = self.score(&picks);
@@ -200,34 +212,65 @@ impl Scorer<'_> {
         best.map(|b| b.1)
     }
 
-    fn gauss_seidel(&self, robots: &[SampleRobot]) -> Option<Vec<usize>> {
-        // Start at each robot's candidate nearest its heading point (or itself).
-        let mut picks: Vec<usize> = robots
+    /// Shortfall (m) of the separations between robot `i` at candidate `k` and
+    /// the robots `placed` so far.
+    fn violation_with(&self, picks: &[usize], placed: &[bool], i: usize, k: usize) -> f64 {
+        self.separations
             .iter()
-            .zip(self.cands)
-            .map(|(r, c)| {
-                let want = r.heading.unwrap_or(r.p0);
-                (0..c.len()).min_by(|&a, &b| (c[a].spot - want).norm().total_cmp(&(c[b].spot - want).norm()))
+            .filter_map(|s| {
+                let other = if s.i == i {
+                    s.j
+                } else if s.j == i {
+                    s.i
+                } else {
+                    return None;
+                };
+                placed[other].then(|| {
+                    let d = (self.cands[i][k].spot - self.cands[other][picks[other]].spot).norm();
+                    (s.min_m - d).max(0.0)
+                })
             })
-            .collect::<Option<_>>()?;
-        let mut current = self.score(&picks);
+            .sum()
+    }
+
+    fn gauss_seidel(&self, robots: &[SampleRobot]) -> Option<Vec<usize>> {
+        let n = robots.len();
+        // Greedy start: one robot after the other, the candidate nearest its
+        // heading point (or itself) among those keeping clear of the robots placed.
+        let mut picks = vec![0usize; n];
+        let mut placed = vec![false; n];
+        for i in 0..n {
+            let want = robots[i].heading.unwrap_or(robots[i].p0);
+            let key = |k: usize| {
+                (self.violation_with(&picks, &placed, i, k), (self.cands[i][k].spot - want).norm())
+            };
+            picks[i] = (0..self.cands[i].len()).min_by(|&a, &b| {
+                let (ka, kb) = (key(a), key(b));
+                ka.0.total_cmp(&kb.0).then(ka.1.total_cmp(&kb.1))
+            })?;
+            placed[i] = true;
+        }
+        // Sweeps: one robot at a time, the others held; a move may not add a
+        // separation shortfall, and lowers the score (or the shortfall).
+        let all = vec![true; n];
         for _ in 0..self.cfg.max_sweeps {
             let mut changed = false;
-            for i in 0..picks.len() {
+            for i in 0..n {
                 let keep = picks[i];
-                let mut best = (current, keep);
+                let mut best = (self.violation_with(&picks, &all, i, keep), self.score(&picks), keep);
                 for k in 0..self.cands[i].len() {
+                    let v = self.violation_with(&picks, &all, i, k);
+                    if v > best.0 + 1e-12 {
+                        continue;
+                    }
                     picks[i] = k;
                     let s = self.score(&picks);
-                    if s < best.0 - 1e-12 {
-                        best = (s, k);
+                    if v < best.0 - 1e-12 || s < best.1 - 1e-12 {
+                        best = (v, s, k);
                     }
                 }
-                picks[i] = best.1;
-                if best.1 != keep {
-                    changed = true;
-                    current = best.0;
-                }
+                picks[i] = best.2;
+                changed |= best.2 != keep;
             }
             if !changed {
                 break;

@@ -1,0 +1,268 @@
+//! `coordinator.toml`: every key optional, unknown keys rejected, values
+//! validated before anything starts. Errors name the file and the key.
+
+use std::collections::BTreeMap;
+use std::net::SocketAddr;
+use std::path::{Path, PathBuf};
+
+use serde::Deserialize;
+
+use crate::error::ServerError;
+use crate::triangulation::{RobustLoss, TriangulationConfig};
+
+/// The coordinator's configuration.
+#[derive(Clone, Debug, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct CoordinatorConfig {
+    /// Address the gRPC server listens on.
+    pub listen: SocketAddr,
+    /// When a robot counts as stale.
+    pub liveness: LivenessConfig,
+    /// How observations of different robots are combined in time.
+    pub alignment: AlignmentConfig,
+    /// How DoAs become rays.
+    pub doa: DoaConfig,
+    /// Acceptance limits of incoming messages.
+    pub limits: LimitsConfig,
+    /// Triangulation and its gate.
+    pub triangulation: TriangulationConfig,
+    /// Where estimates are written besides the watch stream.
+    pub output: OutputConfig,
+    /// Robot authentication.
+    pub auth: AuthConfig,
+}
+
+/// Liveness settings.
+#[derive(Clone, Debug, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct LivenessConfig {
+    /// A connected robot silent this long is stale and leaves triangulation (ms).
+    pub stale_after_ms: u64,
+    /// Period of the housekeeping tick (ms); 0 disables it (time then advances
+    /// only with incoming messages, as in simulation and replay).
+    pub tick_ms: u64,
+}
+
+/// Time alignment of observations from different robots.
+#[derive(Clone, Debug, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct AlignmentConfig {
+    /// Observations within this much of the newest stamp are combined (ms).
+    pub window_ms: u64,
+    /// How much observation history is kept per robot (ms).
+    pub history_ms: u64,
+}
+
+/// DoA handling.
+#[derive(Clone, Debug, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct DoaConfig {
+    /// Angular σ per tangent axis used when a DoA carries none (degrees).
+    pub default_sigma_deg: f64,
+    /// DoAs with lower activity are ignored.
+    pub min_activity: f64,
+}
+
+/// Acceptance limits of incoming messages.
+#[derive(Clone, Debug, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct LimitsConfig {
+    /// Largest accepted lead of a stamp over the coordinator clock (ms).
+    pub max_future_ms: u64,
+    /// Accepted deviation of a direction's norm from 1.
+    pub unit_vector_tolerance: f64,
+    /// Accepted deviation of a quaternion's norm from 1.
+    pub quaternion_tolerance: f64,
+}
+
+/// Outputs besides the watch stream.
+#[derive(Clone, Debug, Default, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct OutputConfig {
+    /// Append every estimate with a position to this JSON-lines file:
+    /// `{"stamp_ns", "x", "y", "z", "cov", "gdop", "theta_deg", "robots", …}`.
+    pub estimates_jsonl: Option<PathBuf>,
+}
+
+/// Robot authentication by bearer token (`authorization: Bearer TOKEN`).
+#[derive(Clone, Debug, Default, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct AuthConfig {
+    /// Refuse robots without a known token.
+    pub required: bool,
+    /// Robot id → token. A robot presenting a token is that robot: its hello
+    /// must carry the same id.
+    pub tokens: BTreeMap<String, String>,
+}
+
+impl Default for CoordinatorConfig {
+    fn default() -> Self {
+        CoordinatorConfig {
+            listen: "0.0.0.0:50051".parse().expect("valid literal"),
+            liveness: LivenessConfig::default(),
+            alignment: AlignmentConfig::default(),
+            doa: DoaConfig::default(),
+            limits: LimitsConfig::default(),
+            triangulation: TriangulationConfig::default(),
+            output: OutputConfig::default(),
+            auth: AuthConfig::default(),
+        }
+    }
+}
+
+impl Default for LivenessConfig {
+    fn default() -> Self {
+        LivenessConfig { stale_after_ms: 2000, tick_ms: 100 }
+    }
+}
+
+impl Default for AlignmentConfig {
+    fn default() -> Self {
+        AlignmentConfig { window_ms: 60, history_ms: 2000 }
+    }
+}
+
+impl Default for DoaConfig {
+    fn default() -> Self {
+        DoaConfig { default_sigma_deg: 3.0, min_activity: 0.0 }
+    }
+}
+
+impl Default for LimitsConfig {
+    fn default() -> Self {
+        LimitsConfig { max_future_ms: 1000, unit_vector_tolerance: 1e-3, quaternion_tolerance: 1e-2 }
+    }
+}
+
+impl CoordinatorConfig {
+    /// Reads and validates a TOML file.
+    pub fn from_file(path: &Path) -> Result<Self, ServerError> {
+        let text =
+            std::fs::read_to_string(path).map_err(|source| ServerError::Io { path: path.into(), source })?;
+        Self::from_toml(&text, path)
+    }
+
+    /// Parses and validates TOML text; errors name `path` and the key.
+    pub fn from_toml(text: &str, path: &Path) -> Result<Self, ServerError> {
+        let de = toml::Deserializer::parse(text).map_err(|e| config_error(path, "", &e.to_string()))?;
+        let config: CoordinatorConfig = serde_path_to_error::deserialize(de).map_err(|e| {
+            let field = e.path().to_string();
+            config_error(path, &field, e.into_inner().message())
+        })?;
+        config.validate(path)?;
+        Ok(config)
+    }
+
+    /// Semantic checks the types cannot express.
+    pub fn validate(&self, path: &Path) -> Result<(), ServerError> {
+        let err = |field: &str, message: String| Err(config_error(path, field, &message));
+        let positive = |v: f64| v.is_finite() && v > 0.0;
+        if self.liveness.stale_after_ms == 0 {
+            return err("liveness.stale_after_ms", "must be > 0".into());
+        }
+        if self.alignment.window_ms == 0 {
+            return err("alignment.window_ms", "must be > 0".into());
+        }
+        if self.alignment.history_ms < self.alignment.window_ms {
+            return err(
+                "alignment.history_ms",
+                format!("must be ≥ alignment.window_ms ({})", self.alignment.window_ms),
+            );
+        }
+        if !(positive(self.doa.default_sigma_deg) && self.doa.default_sigma_deg <= 180.0) {
+            return err("doa.default_sigma_deg", format!("{} not in (0, 180]", self.doa.default_sigma_deg));
+        }
+        if !(0.0..=1.0).contains(&self.doa.min_activity) {
+            return err("doa.min_activity", format!("{} not in [0, 1]", self.doa.min_activity));
+        }
+        if !positive(self.limits.unit_vector_tolerance) || self.limits.unit_vector_tolerance >= 0.5 {
+            return err(
+                "limits.unit_vector_tolerance",
+                format!("{} not in (0, 0.5)", self.limits.unit_vector_tolerance),
+            );
+        }
+        if !positive(self.limits.quaternion_tolerance) || self.limits.quaternion_tolerance >= 0.5 {
+            return err(
+                "limits.quaternion_tolerance",
+                format!("{} not in (0, 0.5)", self.limits.quaternion_tolerance),
+            );
+        }
+        let t = &self.triangulation;
+        for (field, v) in [
+            ("triangulation.min_range_m", t.min_range_m),
+            ("triangulation.min_ray_angle_deg", t.min_ray_angle_deg),
+            ("triangulation.max_condition_number", t.max_condition_number),
+            ("triangulation.max_rms_m", t.max_rms_m),
+            ("triangulation.max_range_m", t.max_range_m),
+            ("triangulation.min_sigma_rad", t.min_sigma_rad),
+        ] {
+            if !positive(v) {
+                return err(field, format!("{v} must be a positive number"));
+            }
+        }
+        if !(t.residual_probability > 0.0 && t.residual_probability < 1.0) {
+            return err(
+                "triangulation.residual_probability",
+                format!("{} not in (0, 1)", t.residual_probability),
+            );
+        }
+        match t.robust_loss {
+            RobustLoss::Huber { delta: v } | RobustLoss::Cauchy { c: v } if !positive(v) => {
+                return err("triangulation.robust_loss", format!("scale {v} must be positive"));
+            }
+            _ => {}
+        }
+        for (robot, token) in &self.auth.tokens {
+            if let Err(e) = soundmap_proto::RobotId::parse(robot, &format!("auth.tokens.{robot}")) {
+                return err(&e.field, e.problem.to_string());
+            }
+            if token.len() < 16 {
+                return err(&format!("auth.tokens.{robot}"), "tokens must be at least 16 characters".into());
+            }
+        }
+        if self.auth.required && self.auth.tokens.is_empty() {
+            return err("auth.required", "true, but auth.tokens is empty: no robot could connect".into());
+        }
+        Ok(())
+    }
+}
+
+fn config_error(path: &Path, field: &str, message: &str) -> ServerError {
+    ServerError::Config {
+        path: path.into(),
+        field: if field.is_empty() || field == "." { "(document)".into() } else { field.into() },
+        message: message.trim().replace('\n', " "),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn parse(text: &str) -> Result<CoordinatorConfig, String> {
+        CoordinatorConfig::from_toml(text, Path::new("c.toml")).map_err(|e| e.to_string())
+    }
+
+    #[test]
+    fn empty_file_gives_defaults() {
+        assert_eq!(parse("").unwrap(), CoordinatorConfig::default());
+    }
+
+    #[test]
+    fn errors_name_file_and_key() {
+        let e = parse("[triangulation]\nmax_rms_m = \"big\"\n").unwrap_err();
+        assert!(e.starts_with("c.toml: triangulation.max_rms_m: "), "{e}");
+        let e = parse("[alignment]\nwindow_msec = 3\n").unwrap_err();
+        assert!(e.contains("c.toml") && e.contains("window_msec"), "{e}");
+        let e = parse("[doa]\ndefault_sigma_deg = -1.0\n").unwrap_err();
+        assert!(e.starts_with("c.toml: doa.default_sigma_deg: "), "{e}");
+        let e = parse("listen = \"nowhere\"\n").unwrap_err();
+        assert!(e.starts_with("c.toml: listen: "), "{e}");
+        let e = parse("[auth]\nrequired = true\n").unwrap_err();
+        assert!(e.starts_with("c.toml: auth.required: "), "{e}");
+        let e = parse("[triangulation.robust_loss]\nkind = \"cauchy\"\nc = 0.0\n").unwrap_err();
+        assert!(e.starts_with("c.toml: triangulation.robust_loss: "), "{e}");
+        let e = parse("[liveness\n").unwrap_err();
+        assert!(e.starts_with("c.toml: (document): "), "{e}");
+    }
+}

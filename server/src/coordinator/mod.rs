@@ -1,0 +1,365 @@
+//! The coordinator as a pure state machine: fed `(now, input)`, it returns
+//! outputs. The gRPC service, the simulator and a replay all drive this same
+//! code; none of it opens sockets or reads clocks.
+
+pub mod estimate;
+pub mod robots;
+
+use std::collections::{BTreeMap, HashMap};
+
+use nalgebra::Point3;
+use soundmap_proto::{
+    CommandAck, CommandProgress, Hello, Limits, Observation, Problem, RobotId, Stamp, ValidationError,
+};
+
+pub use estimate::Estimate;
+pub use robots::{ConnId, Liveness, RobotEntry, StoredObservation};
+
+use crate::config::CoordinatorConfig;
+use crate::error::ServerError;
+use crate::ray::Ray;
+use crate::triangulation::triangulate;
+
+/// The coordinator's answer to a valid hello.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct Welcome {
+    /// The stream's id.
+    pub conn: ConnId,
+    /// The accepted robot id.
+    pub robot_id: RobotId,
+    /// Whether the robot's earlier state resumed.
+    pub resumed: bool,
+    /// Stale timeout (ms).
+    pub stale_after_ms: u64,
+}
+
+/// A change of liveness found by [`Coordinator::tick`].
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct LivenessChange {
+    /// The robot.
+    pub robot_id: RobotId,
+    /// Its new liveness.
+    pub liveness: Liveness,
+}
+
+/// Counters for monitoring.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct Counters {
+    /// Observations accepted.
+    pub observations: u64,
+    /// Observations rejected.
+    pub rejected: u64,
+    /// Estimates published.
+    pub estimates: u64,
+    /// Estimate requests that found fewer than two aligned robots.
+    pub unaligned: u64,
+}
+
+/// The coordinator state.
+#[derive(Debug)]
+pub struct Coordinator {
+    config: CoordinatorConfig,
+    robots: BTreeMap<RobotId, RobotEntry>,
+    connections: HashMap<ConnId, RobotId>,
+    next_conn: ConnId,
+    /// Newest observation stamp not yet covered by an estimate.
+    pending: Option<Stamp>,
+    last_estimate: Option<Estimate>,
+    counters: Counters,
+    liveness: BTreeMap<RobotId, Liveness>,
+}
+
+impl Coordinator {
+    /// A coordinator with no robots.
+    pub fn new(config: CoordinatorConfig) -> Self {
+        Coordinator {
+            config,
+            robots: BTreeMap::new(),
+            connections: HashMap::new(),
+            next_conn: 1,
+            pending: None,
+            last_estimate: None,
+            counters: Counters::default(),
+            liveness: BTreeMap::new(),
+        }
+    }
+
+    /// Its configuration.
+    pub fn config(&self) -> &CoordinatorConfig {
+        &self.config
+    }
+
+    /// Validation limits at `now` for incoming messages.
+    pub fn limits(&self, now: Stamp) -> Limits {
+        Limits {
+            now,
+            max_future_ns: self.config.limits.max_future_ms as i64 * 1_000_000,
+            unit_vector_tolerance: self.config.limits.unit_vector_tolerance,
+            quaternion_tolerance: self.config.limits.quaternion_tolerance,
+        }
+    }
+
+    fn stale_after_ns(&self) -> i64 {
+        self.config.liveness.stale_after_ms as i64 * 1_000_000
+    }
+
+    /// A robot says hello on a new stream. `authenticated` is the identity its
+    /// credentials prove, when the transport authenticated it.
+    pub fn connect(
+        &mut self,
+        now: Stamp,
+        hello: Hello,
+        authenticated: Option<&RobotId>,
+    ) -> Result<Welcome, ServerError> {
+        if let Some(auth) = authenticated
+            && *auth != hello.robot_id
+        {
+            return Err(ServerError::IdentityMismatch {
+                claimed: hello.robot_id,
+                authenticated: auth.clone(),
+            });
+        }
+        let stale_after_ns = self.stale_after_ns();
+        let conn = self.next_conn;
+        let id = hello.robot_id.clone();
+        let resumed = match self.robots.get_mut(&id) {
+            Some(entry) => {
+                if entry.liveness(now, stale_after_ns) == Liveness::Live {
+                    return Err(ServerError::AlreadyConnected(id));
+                }
+                // A stale stream is taken over; a closed one resumes.
+                if let Some(old) = entry.conn.take() {
+                    self.connections.remove(&old);
+                }
+                entry.hello = hello;
+                entry.conn = Some(conn);
+                entry.last_seen = now;
+                entry.last_sequence = None;
+                true
+            }
+            None => {
+                self.robots.insert(id.clone(), RobotEntry::new(hello, conn, now));
+                false
+            }
+        };
+        self.next_conn += 1;
+        self.connections.insert(conn, id.clone());
+        self.liveness.insert(id.clone(), Liveness::Live);
+        Ok(Welcome { conn, robot_id: id, resumed, stale_after_ms: self.config.liveness.stale_after_ms })
+    }
+
+    /// Whether `conn` is still the robot's current stream.
+    pub fn is_current(&self, conn: ConnId) -> bool {
+        self.connections.contains_key(&conn)
+    }
+
+    /// The robot of a stream.
+    pub fn robot_of(&self, conn: ConnId) -> Option<&RobotId> {
+        self.connections.get(&conn)
+    }
+
+    fn entry_mut(&mut self, conn: ConnId, what: &'static str) -> Result<&mut RobotEntry, ServerError> {
+        let id = self.connections.get(&conn).ok_or(ServerError::NoHello(what))?;
+        Ok(self.robots.get_mut(id).expect("connections point at known robots"))
+    }
+
+    /// A stream closed. The robot's state is kept for a reconnection.
+    pub fn disconnect(&mut self, _now: Stamp, conn: ConnId) {
+        if let Some(id) = self.connections.remove(&conn) {
+            if let Some(e) = self.robots.get_mut(&id) {
+                e.conn = None;
+            }
+            self.liveness.insert(id, Liveness::Disconnected);
+        }
+    }
+
+    /// Any message is a sign of life.
+    pub fn heartbeat(&mut self, now: Stamp, conn: ConnId) -> Result<(), ServerError> {
+        self.entry_mut(conn, "heartbeat")?.last_seen = now;
+        Ok(())
+    }
+
+    /// Counts an observation that failed validation before reaching the core.
+    pub fn note_rejected(&mut self, now: Stamp, conn: ConnId) {
+        if let Ok(e) = self.entry_mut(conn, "observation") {
+            e.rejected += 1;
+            e.last_seen = now;
+        }
+        self.counters.rejected += 1;
+    }
+
+    /// A validated observation. Checks ordering against the robot's previous
+    /// ones, builds its rays in the map frame and keeps them for alignment.
+    pub fn observe(&mut self, now: Stamp, conn: ConnId, obs: Observation) -> Result<(), ServerError> {
+        let min_activity = self.config.doa.min_activity;
+        let default_sigma = self.config.doa.default_sigma_deg.to_radians();
+        let history_ns = self.config.alignment.history_ms as i64 * 1_000_000;
+        let entry = match self.entry_mut(conn, "observation") {
+            Ok(e) => e,
+            Err(e) => {
+                self.counters.rejected += 1;
+                return Err(e);
+            }
+        };
+        entry.last_seen = now;
+        let ordering = if let Some(prev) = entry.last_sequence.filter(|p| obs.sequence <= *p) {
+            Some(ValidationError::new(
+                "observation.sequence",
+                Problem::SequenceNotIncreasing { sequence: obs.sequence, previous: prev },
+            ))
+        } else if let Some(prev) = entry.last_stamp.filter(|p| obs.stamp < *p) {
+            Some(ValidationError::new(
+                "observation.stamp_ns",
+                Problem::OutOfOrder { stamp_ns: obs.stamp.as_ns(), previous_ns: prev.as_ns() },
+            ))
+        } else {
+            None
+        };
+        if let Some(e) = ordering {
+            entry.rejected += 1;
+            self.counters.rejected += 1;
+            return Err(e.into());
+        }
+        let base_from_array = entry.hello.array.base_from_array;
+        let rays = obs
+            .doas
+            .iter()
+            .filter(|d| d.activity >= min_activity)
+            .map(|d| {
+                let sigma = d.angular_sigma_rad.unwrap_or(default_sigma);
+                let ray = Ray::from_doa(
+                    &obs.map_from_base,
+                    &base_from_array,
+                    &d.direction_in_array,
+                    sigma,
+                    obs.pose_covariance.as_ref(),
+                );
+                (ray, d.activity, d.track_id)
+            })
+            .collect::<Vec<_>>();
+        entry.last_sequence = Some(obs.sequence);
+        entry.last_stamp = Some(obs.stamp);
+        entry.last_pose = Some(obs.map_from_base);
+        entry.accepted += 1;
+        let has_rays = !rays.is_empty();
+        entry.remember(StoredObservation { stamp: obs.stamp, rays, received: now }, history_ns);
+        self.counters.observations += 1;
+        if has_rays {
+            self.pending = Some(self.pending.map_or(obs.stamp, |p| p.max(obs.stamp)));
+        }
+        Ok(())
+    }
+
+    /// A robot answers a command.
+    pub fn command_ack(&mut self, now: Stamp, conn: ConnId, ack: &CommandAck) -> Result<(), ServerError> {
+        let entry = self.entry_mut(conn, "command_ack")?;
+        entry.last_seen = now;
+        match &mut entry.command {
+            Some((cmd, state)) if cmd.command_id == ack.command_id => {
+                if !ack.accepted {
+                    *state = Some(soundmap_proto::CommandState::Failed);
+                }
+                Ok(())
+            }
+            _ => Err(ServerError::UnknownCommand {
+                field: "command_ack.command_id",
+                command_id: ack.command_id,
+            }),
+        }
+    }
+
+    /// A robot reports progress on a command.
+    pub fn command_progress(
+        &mut self,
+        now: Stamp,
+        conn: ConnId,
+        p: &CommandProgress,
+    ) -> Result<(), ServerError> {
+        let entry = self.entry_mut(conn, "command_progress")?;
+        entry.last_seen = now;
+        match &mut entry.command {
+            Some((cmd, state)) if cmd.command_id == p.command_id => {
+                *state = Some(p.state);
+                Ok(())
+            }
+            _ => Err(ServerError::UnknownCommand {
+                field: "command_progress.command_id",
+                command_id: p.command_id,
+            }),
+        }
+    }
+
+    /// Housekeeping: returns the robots whose liveness changed since the last tick.
+    pub fn tick(&mut self, now: Stamp) -> Vec<LivenessChange> {
+        let stale_after_ns = self.stale_after_ns();
+        let mut changes = Vec::new();
+        for (id, e) in &self.robots {
+            let l = e.liveness(now, stale_after_ns);
+            if self.liveness.get(id) != Some(&l) {
+                self.liveness.insert(id.clone(), l);
+                changes.push(LivenessChange { robot_id: id.clone(), liveness: l });
+            }
+        }
+        changes
+    }
+
+    /// Triangulates the dominant source from the rays aligned with the newest
+    /// observation not yet covered, if any arrived since the last estimate.
+    /// Only live robots contribute, each with its observation nearest in time
+    /// (within the alignment window) and that observation's most active DoA.
+    pub fn estimate(&mut self, now: Stamp) -> Option<Estimate> {
+        let t = self.pending.take()?;
+        let window_ns = self.config.alignment.window_ms as i64 * 1_000_000;
+        let stale_after_ns = self.stale_after_ns();
+        let mut robots = Vec::new();
+        let mut rays = Vec::new();
+        for (id, e) in &self.robots {
+            if e.liveness(now, stale_after_ns) != Liveness::Live {
+                continue;
+            }
+            if let Some(ray) = e.nearest(t, window_ns).and_then(StoredObservation::dominant) {
+                robots.push(id.clone());
+                rays.push(*ray);
+            }
+        }
+        if rays.len() < 2 {
+            self.counters.unaligned += 1;
+            return None;
+        }
+        let estimate = Estimate {
+            source_id: 1,
+            stamp: t,
+            robots,
+            triangulation: triangulate(&rays, &self.config.triangulation),
+        };
+        self.counters.estimates += 1;
+        self.last_estimate = Some(estimate.clone());
+        Some(estimate)
+    }
+
+    /// The latest estimate.
+    pub fn last_estimate(&self) -> Option<&Estimate> {
+        self.last_estimate.as_ref()
+    }
+
+    /// Known robots, by id.
+    pub fn robots(&self) -> impl Iterator<Item = (&RobotId, &RobotEntry)> {
+        self.robots.iter()
+    }
+
+    /// Liveness of a robot at `now`.
+    pub fn liveness_of(&self, id: &RobotId, now: Stamp) -> Option<Liveness> {
+        self.robots.get(id).map(|e| e.liveness(now, self.stale_after_ns()))
+    }
+
+    /// Counters since start.
+    pub fn counters(&self) -> Counters {
+        self.counters
+    }
+
+    /// Array centre of a robot in the map at its last pose.
+    pub fn array_position(&self, id: &RobotId) -> Option<Point3<f64>> {
+        let e = self.robots.get(id)?;
+        Some(e.last_pose? * e.hello.array.base_from_array * Point3::origin())
+    }
+}

@@ -1,0 +1,121 @@
+//! What the coordinator knows about each robot: identity, connection,
+//! liveness, and a short history of its rays.
+
+use std::collections::VecDeque;
+
+use nalgebra::Isometry3;
+use soundmap_proto::{CommandState, Hello, RepositionCommand, Stamp};
+
+use crate::ray::Ray;
+
+/// Identifies one stream (connection) of a robot.
+pub type ConnId = u64;
+
+/// Liveness of a robot, as monitoring reports it.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Liveness {
+    /// Connected and heard from within the stale timeout.
+    Live,
+    /// Connected but silent too long; out of triangulation.
+    Stale,
+    /// Stream closed; state kept for a reconnection.
+    Disconnected,
+}
+
+/// One observation kept for alignment: the robot's rays at a stamp.
+#[derive(Clone, Debug)]
+pub struct StoredObservation {
+    /// Acoustic time of the DoAs.
+    pub stamp: Stamp,
+    /// Rays of the DoAs that passed the activity threshold, map frame, with their activity
+    /// and robot-local track id.
+    pub rays: Vec<(Ray, f64, u64)>,
+    /// Receipt time (coordinator clock).
+    pub received: Stamp,
+}
+
+impl StoredObservation {
+    /// The ray of the most active DoA.
+    pub fn dominant(&self) -> Option<&Ray> {
+        self.rays.iter().max_by(|a, b| a.1.total_cmp(&b.1)).map(|r| &r.0)
+    }
+}
+
+/// A robot known to the coordinator.
+#[derive(Debug)]
+pub struct RobotEntry {
+    /// Its hello (identity, array).
+    pub hello: Hello,
+    /// The stream it is connected on, if any.
+    pub conn: Option<ConnId>,
+    /// Coordinator clock when last heard from.
+    pub last_seen: Stamp,
+    /// Stamp and sequence of the last accepted observation.
+    pub last_stamp: Option<Stamp>,
+    /// Sequence of the last observation on the current stream.
+    pub last_sequence: Option<u64>,
+    /// Pose at the last accepted observation.
+    pub last_pose: Option<Isometry3<f64>>,
+    /// Recent observations, oldest first, stamps non-decreasing.
+    pub history: VecDeque<StoredObservation>,
+    /// Observations accepted / rejected since start.
+    pub accepted: u64,
+    /// Observations rejected since start.
+    pub rejected: u64,
+    /// The latest command sent and the robot's last report on it.
+    pub command: Option<(RepositionCommand, Option<CommandState>)>,
+}
+
+impl RobotEntry {
+    /// A robot that just said hello on `conn`.
+    pub fn new(hello: Hello, conn: ConnId, now: Stamp) -> Self {
+        RobotEntry {
+            hello,
+            conn: Some(conn),
+            last_seen: now,
+            last_stamp: None,
+            last_sequence: None,
+            last_pose: None,
+            history: VecDeque::new(),
+            accepted: 0,
+            rejected: 0,
+            command: None,
+        }
+    }
+
+    /// Liveness at `now` given the stale timeout.
+    pub fn liveness(&self, now: Stamp, stale_after_ns: i64) -> Liveness {
+        match self.conn {
+            None => Liveness::Disconnected,
+            Some(_) if now - self.last_seen > stale_after_ns => Liveness::Stale,
+            Some(_) => Liveness::Live,
+        }
+    }
+
+    /// Appends an observation and forgets those older than `history_ns` before it.
+    pub fn remember(&mut self, obs: StoredObservation, history_ns: i64) {
+        let horizon = obs.stamp.plus_ns(-history_ns);
+        self.history.push_back(obs);
+        while self.history.front().is_some_and(|o| o.stamp < horizon) {
+            self.history.pop_front();
+        }
+    }
+
+    /// The kept observation with a dominant ray nearest to `t`, if within `window_ns`.
+    pub fn nearest(&self, t: Stamp, window_ns: i64) -> Option<&StoredObservation> {
+        // History is sorted by stamp: look around the insertion point.
+        let i = self.history.partition_point(|o| o.stamp < t);
+        let mut best: Option<&StoredObservation> = None;
+        let lo = i.saturating_sub(8);
+        let hi = (i + 8).min(self.history.len());
+        for o in self.history.range(lo..hi) {
+            if o.rays.is_empty() || (o.stamp - t).abs() > window_ns {
+                continue;
+            }
+            if best.is_none_or(|b| (o.stamp - t).abs() < (b.stamp - t).abs()) {
+                best = Some(o);
+            }
+        }
+        best
+    }
+}

@@ -1,0 +1,319 @@
+//! The one task that owns the [`Coordinator`]. Handlers send it requests over
+//! a channel; it processes them in batches (so that under load one estimate
+//! covers many observations), publishes estimates, and answers each stream in
+//! order: stream errors, then commands, then the acknowledgement.
+
+use std::collections::HashMap;
+use std::sync::Arc;
+use std::time::{Duration, Instant};
+
+use soundmap_proto::{CommandAck, CommandProgress, Hello, Observation, RobotId, Stamp, wire};
+use tokio::sync::{broadcast, mpsc, oneshot};
+
+use super::convert::{estimate_to_wire, robot_to_wire};
+use super::metrics::Metrics;
+use super::status::to_stream_error;
+use crate::clock::Clock;
+use crate::coordinator::{ConnId, Coordinator, Welcome};
+use crate::error::ServerError;
+
+/// Most requests handled before an estimate is computed.
+const MAX_BATCH: usize = 1024;
+
+/// What handlers ask of the coordinator task.
+#[derive(Debug)]
+pub enum Request {
+    /// A stream said hello; `outbound` carries everything sent back to it.
+    Connect {
+        /// The validated hello.
+        hello: Hello,
+        /// Identity proven by the transport.
+        identity: Option<RobotId>,
+        /// The stream's outbound channel.
+        outbound: mpsc::Sender<wire::CoordinatorMessage>,
+        /// Where the answer goes.
+        reply: oneshot::Sender<Result<Welcome, ServerError>>,
+    },
+    /// A validated observation.
+    Observation {
+        /// Stream.
+        conn: ConnId,
+        /// The observation.
+        obs: Observation,
+        /// When the handler received it.
+        received: Instant,
+    },
+    /// A message that failed validation (or a second hello).
+    Rejected {
+        /// Stream.
+        conn: ConnId,
+        /// Its sequence number, when it was an observation.
+        sequence: Option<u64>,
+        /// What was wrong.
+        error: ServerError,
+    },
+    /// A heartbeat.
+    Heartbeat {
+        /// Stream.
+        conn: ConnId,
+    },
+    /// A command acknowledgement.
+    CommandAck {
+        /// Stream.
+        conn: ConnId,
+        /// The ack.
+        ack: CommandAck,
+    },
+    /// Command progress.
+    CommandProgress {
+        /// Stream.
+        conn: ConnId,
+        /// The report.
+        progress: CommandProgress,
+    },
+    /// The stream closed.
+    Disconnect {
+        /// Stream.
+        conn: ConnId,
+    },
+    /// Monitoring snapshot.
+    GetState {
+        /// Where the answer goes.
+        reply: oneshot::Sender<wire::CoordinatorState>,
+    },
+}
+
+/// Per-stream bookkeeping of the task.
+struct Stream {
+    outbound: mpsc::Sender<wire::CoordinatorMessage>,
+    /// Highest observation sequence handled since the last acknowledgement.
+    to_ack: Option<u64>,
+}
+
+/// The coordinator task.
+pub struct Actor {
+    coordinator: Coordinator,
+    clock: Arc<dyn Clock>,
+    streams: HashMap<ConnId, Stream>,
+    estimates: broadcast::Sender<Arc<wire::SourceEstimate>>,
+    sink: Option<mpsc::UnboundedSender<Arc<wire::SourceEstimate>>>,
+    metrics: Arc<Metrics>,
+    /// Receipt times of observations waiting for an estimate.
+    receipts: Vec<Instant>,
+    tick: Option<Duration>,
+}
+
+impl std::fmt::Debug for Actor {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Actor").field("streams", &self.streams.len()).finish_non_exhaustive()
+    }
+}
+
+impl Actor {
+    /// A task around `coordinator`.
+    pub fn new(
+        coordinator: Coordinator,
+        clock: Arc<dyn Clock>,
+        estimates: broadcast::Sender<Arc<wire::SourceEstimate>>,
+        sink: Option<mpsc::UnboundedSender<Arc<wire::SourceEstimate>>>,
+        metrics: Arc<Metrics>,
+    ) -> Self {
+        let tick = match coordinator.config().liveness.tick_ms {
+            0 => None,
+            ms => Some(Duration::from_millis(ms)),
+        };
+        Actor {
+            coordinator,
+            clock,
+            streams: HashMap::new(),
+            estimates,
+            sink,
+            metrics,
+            receipts: Vec::new(),
+            tick,
+        }
+    }
+
+    /// Runs until every request sender is gone or shutdown begins (requests
+    /// already queued are handled first).
+    pub async fn run(
+        mut self,
+        mut requests: mpsc::Receiver<Request>,
+        mut stopping: tokio::sync::watch::Receiver<bool>,
+    ) {
+        let mut ticker = self.tick.map(|p| {
+            let mut i = tokio::time::interval(p);
+            i.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
+            i
+        });
+        let mut batch = Vec::with_capacity(MAX_BATCH);
+        loop {
+            let first = match &mut ticker {
+                Some(t) => tokio::select! {
+                    biased;
+                    r = requests.recv() => r,
+                    _ = stopping.wait_for(|s| *s) => None,
+                    _ = t.tick() => { self.housekeeping(); continue; }
+                },
+                None => tokio::select! {
+                    biased;
+                    r = requests.recv() => r,
+                    _ = stopping.wait_for(|s| *s) => None,
+                },
+            };
+            let Some(first) = first else { break };
+            batch.push(first);
+            while batch.len() < MAX_BATCH {
+                match requests.try_recv() {
+                    Ok(r) => batch.push(r),
+                    Err(_) => break,
+                }
+            }
+            let now = self.clock.now();
+            for r in batch.drain(..) {
+                self.handle(now, r);
+            }
+            self.publish(now);
+            self.acknowledge();
+        }
+    }
+
+    fn housekeeping(&mut self) {
+        let now = self.clock.now();
+        for change in self.coordinator.tick(now) {
+            tracing::info!(robot = %change.robot_id, liveness = ?change.liveness, "robot liveness changed");
+        }
+    }
+
+    fn send(&mut self, conn: ConnId, msg: wire::CoordinatorMessage) {
+        if let Some(s) = self.streams.get(&conn)
+            && let Err(e) = s.outbound.try_send(msg)
+        {
+            tracing::warn!(conn, "outbound queue of stream full or closed: {e}");
+        }
+    }
+
+    fn handle(&mut self, now: Stamp, request: Request) {
+        match request {
+            Request::Connect { hello, identity, outbound, reply } => {
+                let result = self.coordinator.connect(now, hello, identity.as_ref());
+                if let Ok(w) = &result {
+                    // A taken-over stale stream loses its outbound channel, which ends it.
+                    self.streams.retain(|c, _| self.coordinator.is_current(*c));
+                    let welcome = wire::CoordinatorMessage {
+                        msg: Some(wire::coordinator_message::Msg::Welcome(wire::Welcome {
+                            robot_id: w.robot_id.to_string(),
+                            coordinator_version: concat!("soundmap-coordinator ", env!("CARGO_PKG_VERSION"))
+                                .into(),
+                            stale_after_ms: w.stale_after_ms,
+                            resumed: w.resumed,
+                        })),
+                    };
+                    // Queued before anything else can be sent on this stream.
+                    let _ = outbound.try_send(welcome);
+                    self.streams.insert(w.conn, Stream { outbound, to_ack: None });
+                    tracing::info!(robot = %w.robot_id, conn = w.conn, resumed = w.resumed, "robot connected");
+                }
+                let _ = reply.send(result);
+            }
+            Request::Observation { conn, obs, received } => {
+                let seq = obs.sequence;
+                match self.coordinator.observe(now, conn, obs) {
+                    Ok(()) => self.receipts.push(received),
+                    Err(e) => self.send(conn, to_stream_error(&e, seq)),
+                }
+                self.mark_ack(conn, seq);
+            }
+            Request::Rejected { conn, sequence, error } => {
+                if sequence.is_some() {
+                    self.coordinator.note_rejected(now, conn);
+                } else {
+                    let _ = self.coordinator.heartbeat(now, conn);
+                }
+                self.send(conn, to_stream_error(&error, sequence.unwrap_or(0)));
+                if let Some(seq) = sequence {
+                    self.mark_ack(conn, seq);
+                }
+            }
+            Request::Heartbeat { conn } => {
+                if let Err(e) = self.coordinator.heartbeat(now, conn) {
+                    self.send(conn, to_stream_error(&e, 0));
+                }
+            }
+            Request::CommandAck { conn, ack } => {
+                if let Err(e) = self.coordinator.command_ack(now, conn, &ack) {
+                    self.send(conn, to_stream_error(&e, 0));
+                }
+            }
+            Request::CommandProgress { conn, progress } => {
+                if let Err(e) = self.coordinator.command_progress(now, conn, &progress) {
+                    self.send(conn, to_stream_error(&e, 0));
+                }
+            }
+            Request::Disconnect { conn } => {
+                if let Some(id) = self.coordinator.robot_of(conn) {
+                    tracing::info!(robot = %id, conn, "robot stream closed");
+                }
+                self.coordinator.disconnect(now, conn);
+                self.streams.remove(&conn);
+            }
+            Request::GetState { reply } => {
+                let _ = reply.send(self.snapshot(now));
+            }
+        }
+    }
+
+    fn mark_ack(&mut self, conn: ConnId, seq: u64) {
+        if let Some(s) = self.streams.get_mut(&conn) {
+            s.to_ack = Some(s.to_ack.map_or(seq, |a| a.max(seq)));
+        }
+    }
+
+    fn publish(&mut self, now: Stamp) {
+        let Some(estimate) = self.coordinator.estimate(now) else {
+            return;
+        };
+        let wire = Arc::new(estimate_to_wire(&estimate));
+        // No watcher is not an error.
+        let _ = self.estimates.send(wire.clone());
+        if let Some(sink) = &self.sink {
+            let _ = sink.send(wire);
+        }
+        if !self.receipts.is_empty() {
+            let published = Instant::now();
+            let mut h = self.metrics.latency.lock().unwrap_or_else(|p| p.into_inner());
+            for r in self.receipts.drain(..) {
+                h.record(published.duration_since(r));
+            }
+        }
+    }
+
+    fn acknowledge(&mut self) {
+        // Observations that led to no estimate (e.g. a lone robot) are not latency samples.
+        self.receipts.clear();
+        for s in self.streams.values_mut() {
+            if let Some(seq) = s.to_ack.take() {
+                let ack = wire::CoordinatorMessage {
+                    msg: Some(wire::coordinator_message::Msg::ObservationAck(wire::ObservationAck {
+                        up_to_sequence: seq,
+                    })),
+                };
+                // Acks are cumulative: a dropped one is covered by the next.
+                let _ = s.outbound.try_send(ack);
+            }
+        }
+    }
+
+    fn snapshot(&self, now: Stamp) -> wire::CoordinatorState {
+        wire::CoordinatorState {
+            now_ns: now.as_ns(),
+            robots: self
+                .coordinator
+                .robots()
+                .map(|(id, e)| robot_to_wire(e, self.coordinator.liveness_of(id, now).expect("known robot")))
+                .collect(),
+            sources: self.coordinator.last_estimate().map(estimate_to_wire).into_iter().collect(),
+            active_positioning: None,
+        }
+    }
+}

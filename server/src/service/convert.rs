@@ -1,0 +1,144 @@
+//! Domain → wire conversions for monitoring, and the JSON-lines form of an estimate.
+
+use nalgebra::{Matrix3, Point3};
+use soundmap_proto::geometry::covariance3_to_wire;
+use soundmap_proto::{pose_to_wire, vec3_to_wire, wire};
+
+use crate::coordinator::{Estimate, Liveness, RobotEntry};
+use crate::triangulation::{Gate, Method, Triangulation};
+
+fn method(m: Method) -> wire::EstimateMethod {
+    match m {
+        Method::RayPair => wire::EstimateMethod::RayPair,
+        Method::LeastSquares => wire::EstimateMethod::LeastSquares,
+        Method::LevenbergMarquardt => wire::EstimateMethod::LevenbergMarquardt,
+    }
+}
+
+fn point(p: &Point3<f64>) -> wire::Vec3 {
+    vec3_to_wire(&p.coords)
+}
+
+/// Finite or zero: the wire has no infinities for GDOP/θ; `trusted` and the gate tell the rest.
+fn finite_or(v: f64, fallback: f64) -> f64 {
+    if v.is_finite() { v } else { fallback }
+}
+
+/// The wire form of a triangulation.
+pub fn triangulation_to_wire(t: &Triangulation, robots: &[String]) -> wire::Triangulation {
+    match t {
+        Triangulation::Solved(s) => wire::Triangulation {
+            method: method(s.method) as i32,
+            position_in_map_m: Some(point(&s.point)),
+            covariance: s.quality.covariance.as_ref().map(covariance3_to_wire),
+            gdop: finite_or(s.quality.gdop, 0.0),
+            theta_deg: s.quality.theta_deg,
+            pairwise_theta: s
+                .quality
+                .pairwise_theta_deg
+                .iter()
+                .map(|(i, j, th)| wire::RobotPairAngle {
+                    robot_a: robots[*i].clone(),
+                    robot_b: robots[*j].clone(),
+                    theta_deg: *th,
+                })
+                .collect(),
+            condition_number: finite_or(s.condition_number, 0.0),
+            miss_distance_m: s.miss_distance_m.unwrap_or(0.0),
+            residual_chi2: finite_or(s.residual_chi2, 0.0),
+            gate: match s.gate {
+                Gate::Accepted => wire::GateDecision::Accepted,
+                Gate::Rejected(_) => wire::GateDecision::Rejected,
+            } as i32,
+            gate_reason: match s.gate {
+                Gate::Accepted => String::new(),
+                Gate::Rejected(r) => r.to_string(),
+            },
+            robots: robots.to_vec(),
+        },
+        Triangulation::Degenerate(d) => wire::Triangulation {
+            method: wire::EstimateMethod::Unspecified as i32,
+            gate: wire::GateDecision::Rejected as i32,
+            gate_reason: d.to_string(),
+            robots: robots.to_vec(),
+            ..Default::default()
+        },
+    }
+}
+
+/// The wire form of an estimate.
+pub fn estimate_to_wire(e: &Estimate) -> wire::SourceEstimate {
+    let robots: Vec<String> = e.robots.iter().map(|r| r.to_string()).collect();
+    let tri = triangulation_to_wire(&e.triangulation, &robots);
+    wire::SourceEstimate {
+        source_id: e.source_id,
+        stamp_ns: e.stamp.as_ns(),
+        position_in_map_m: tri.position_in_map_m,
+        covariance: tri.covariance.clone(),
+        gdop: tri.gdop,
+        theta_deg: e.theta_deg(),
+        robots,
+        method: tri.method,
+        trusted: e.trusted(),
+        triangulation: Some(tri),
+        filtered: None,
+        lagged: 0,
+    }
+}
+
+/// The wire form of a robot's state.
+pub fn robot_to_wire(e: &RobotEntry, liveness: Liveness) -> wire::RobotState {
+    wire::RobotState {
+        robot_id: e.hello.robot_id.to_string(),
+        liveness: match liveness {
+            Liveness::Live => wire::Liveness::Live,
+            Liveness::Stale => wire::Liveness::Stale,
+            Liveness::Disconnected => wire::Liveness::Disconnected,
+        } as i32,
+        last_seen_ns: e.last_seen.as_ns(),
+        last_observation_ns: e.last_stamp.map_or(0, |s| s.as_ns()),
+        map_from_base: e.last_pose.as_ref().map(pose_to_wire),
+        array: Some(e.hello.array.to_wire()),
+        software_version: e.hello.software_version.clone(),
+        observations_accepted: e.accepted,
+        observations_rejected: e.rejected,
+        active_command: e.command.as_ref().map(|(c, _)| c.to_wire()),
+        active_command_state: e
+            .command
+            .as_ref()
+            .and_then(|(_, s)| *s)
+            .map_or(wire::CommandState::Unspecified, |s| s.to_wire()) as i32,
+    }
+}
+
+/// One line of the estimates JSON-lines file (no trailing newline):
+/// `{"stamp_ns", "source_id", "x", "y", "z", "cov" (9 values, m², row-major),
+/// "gdop", "theta_deg", "robots", "trusted", "method"}`. `None` without a position.
+pub fn estimate_to_json_line(e: &wire::SourceEstimate) -> Option<String> {
+    let p = e.position_in_map_m.as_ref()?;
+    let cov: Vec<f64> = e.covariance.as_ref().map(|c| c.values_m2.clone()).unwrap_or_default();
+    let method = wire::EstimateMethod::try_from(e.method).map_or("unspecified", |m| match m {
+        wire::EstimateMethod::RayPair => "ray_pair",
+        wire::EstimateMethod::LeastSquares => "least_squares",
+        wire::EstimateMethod::LevenbergMarquardt => "levenberg_marquardt",
+        wire::EstimateMethod::KalmanFilter => "kalman_filter",
+        wire::EstimateMethod::Unspecified => "unspecified",
+    });
+    let v = serde_json::json!({
+        "stamp_ns": e.stamp_ns,
+        "source_id": e.source_id,
+        "x": p.x, "y": p.y, "z": p.z,
+        "cov": cov,
+        "gdop": e.gdop,
+        "theta_deg": e.theta_deg,
+        "robots": e.robots,
+        "trusted": e.trusted,
+        "method": method,
+    });
+    Some(v.to_string())
+}
+
+/// Reads a 3×3 covariance back from the wire (for clients and tests).
+pub fn covariance_from_wire(c: &wire::Covariance3) -> Option<Matrix3<f64>> {
+    (c.values_m2.len() == 9).then(|| Matrix3::from_fn(|r, k| c.values_m2[r * 3 + k]))
+}

@@ -1,0 +1,152 @@
+//! The gRPC shell around the coordinator: handlers validate and convert, one
+//! task owns the state ([`actor`]), and [`status`] is the one place where
+//! domain errors become gRPC statuses.
+
+pub mod actor;
+pub mod auth;
+pub mod convert;
+pub mod metrics;
+pub mod monitoring;
+pub mod robot_link;
+pub mod sink;
+pub mod status;
+
+use std::net::SocketAddr;
+use std::sync::Arc;
+
+use soundmap_proto::wire;
+use soundmap_proto::wire::monitoring_server::MonitoringServer;
+use soundmap_proto::wire::robot_link_server::RobotLinkServer;
+use tokio::net::TcpListener;
+use tokio::sync::{broadcast, mpsc, oneshot};
+use tokio::task::JoinHandle;
+
+pub use metrics::{LatencyHistogram, Metrics};
+
+use crate::clock::Clock;
+use crate::config::CoordinatorConfig;
+use crate::coordinator::Coordinator;
+use crate::error::ServerError;
+
+/// Requests queued toward the coordinator task before handlers wait.
+const REQUEST_CAPACITY: usize = 65_536;
+/// Estimates a watcher may fall behind before it loses the oldest.
+const WATCH_CAPACITY: usize = 4096;
+/// How long shutdown waits for open calls.
+pub const SHUTDOWN_GRACE: std::time::Duration = std::time::Duration::from_secs(3);
+
+/// A coordinator serving on a socket.
+#[derive(Debug)]
+pub struct RunningCoordinator {
+    /// The address it listens on.
+    pub local_addr: SocketAddr,
+    /// Its metrics.
+    pub metrics: Arc<Metrics>,
+    estimates: broadcast::Sender<Arc<wire::SourceEstimate>>,
+    stopping: tokio::sync::watch::Sender<bool>,
+    shutdown: Option<oneshot::Sender<()>>,
+    server: JoinHandle<Result<(), tonic::transport::Error>>,
+    actor: JoinHandle<()>,
+    sink: Option<std::thread::JoinHandle<()>>,
+}
+
+impl RunningCoordinator {
+    /// Subscribes to published estimates in-process (as `WatchEstimates` does over gRPC).
+    pub fn subscribe(&self) -> broadcast::Receiver<Arc<wire::SourceEstimate>> {
+        self.estimates.subscribe()
+    }
+
+    /// Stops serving: ends every open stream (robots get UNAVAILABLE, watchers
+    /// see their stream end), waits up to [`SHUTDOWN_GRACE`] for calls to
+    /// finish, lets the coordinator task finish, and flushes the sink.
+    pub async fn shutdown(mut self) -> Result<(), ServerError> {
+        let _ = self.stopping.send(true);
+        if let Some(tx) = self.shutdown.take() {
+            let _ = tx.send(());
+        }
+        let served = match tokio::time::timeout(SHUTDOWN_GRACE, &mut self.server).await {
+            Ok(r) => r,
+            Err(_) => {
+                tracing::warn!("calls still open after {SHUTDOWN_GRACE:?}: closing them");
+                self.server.abort();
+                Ok(Ok(()))
+            }
+        };
+        let _ = self.actor.await;
+        if let Some(sink) = self.sink.take() {
+            let _ = tokio::task::spawn_blocking(move || sink.join()).await;
+        }
+        match served {
+            Ok(Ok(())) => Ok(()),
+            Ok(Err(e)) => {
+                Err(ServerError::Io { path: "<grpc server>".into(), source: std::io::Error::other(e) })
+            }
+            Err(e) => Err(ServerError::Io { path: "<grpc server>".into(), source: std::io::Error::other(e) }),
+        }
+    }
+
+    /// Waits until the server stops on its own (it only does on error).
+    pub async fn wait(mut self) -> Result<(), ServerError> {
+        let served = (&mut self.server).await;
+        self.shutdown.take();
+        match served {
+            Ok(Ok(())) => Ok(()),
+            Ok(Err(e)) => {
+                Err(ServerError::Io { path: "<grpc server>".into(), source: std::io::Error::other(e) })
+            }
+            Err(e) => Err(ServerError::Io { path: "<grpc server>".into(), source: std::io::Error::other(e) }),
+        }
+    }
+}
+
+/// Starts the coordinator on `listener` with time from `clock`: the robot
+/// link, monitoring and gRPC health services, the coordinator task, and the
+/// estimates file when configured.
+pub async fn start(
+    config: CoordinatorConfig,
+    clock: Arc<dyn Clock>,
+    listener: TcpListener,
+) -> Result<RunningCoordinator, ServerError> {
+    let local_addr =
+        listener.local_addr().map_err(|source| ServerError::Io { path: "<listener>".into(), source })?;
+    let (requests, requests_rx) = mpsc::channel(REQUEST_CAPACITY);
+    let (estimates, _) = broadcast::channel(WATCH_CAPACITY);
+    let metrics = Arc::new(Metrics::default());
+    let (sink_tx, sink) = match &config.output.estimates_jsonl {
+        Some(path) => {
+            let (tx, handle) = sink::spawn_jsonl_sink(path.clone())?;
+            (Some(tx), Some(handle))
+        }
+        None => (None, None),
+    };
+    let (stopping, stop_rx) = tokio::sync::watch::channel(false);
+    let link = robot_link::RobotLinkService::new(&config, requests.clone(), clock.clone(), stop_rx.clone());
+    let monitoring = monitoring::MonitoringService::new(requests, estimates.clone(), stop_rx.clone());
+    let actor =
+        actor::Actor::new(Coordinator::new(config), clock, estimates.clone(), sink_tx, metrics.clone());
+    let actor = tokio::spawn(actor.run(requests_rx, stop_rx.clone()));
+    let (health_reporter, health) = tonic_health::server::health_reporter();
+    health_reporter.set_serving::<RobotLinkServer<robot_link::RobotLinkService>>().await;
+    health_reporter.set_serving::<MonitoringServer<monitoring::MonitoringService>>().await;
+    let (shutdown_tx, shutdown_rx) = oneshot::channel::<()>();
+    let incoming = tonic::transport::server::TcpIncoming::from(listener).with_nodelay(Some(true));
+    let server = tokio::spawn(
+        tonic::transport::Server::builder()
+            .add_service(health)
+            .add_service(RobotLinkServer::new(link))
+            .add_service(MonitoringServer::new(monitoring))
+            .serve_with_incoming_shutdown(incoming, async {
+                let _ = shutdown_rx.await;
+            }),
+    );
+    Ok(RunningCoordinator {
+        local_addr,
+        metrics,
+        estimates,
+        stopping,
+        shutdown: Some(shutdown_tx),
+        server,
+        actor,
+        sink,
+    })
+}

@@ -1,0 +1,90 @@
+//! `soundmap.v1.Monitoring`: state snapshots, the estimate stream, operator control.
+
+use std::pin::Pin;
+use std::sync::Arc;
+
+use futures::Stream;
+use soundmap_proto::wire;
+use soundmap_proto::wire::monitoring_server::Monitoring;
+use tokio::sync::broadcast::error::RecvError;
+use tokio::sync::{broadcast, mpsc, oneshot};
+use tonic::{Request, Response, Status};
+
+use super::actor;
+use super::status::to_status;
+use crate::error::ServerError;
+
+/// The monitoring service.
+#[derive(Debug, Clone)]
+pub struct MonitoringService {
+    requests: mpsc::Sender<actor::Request>,
+    estimates: broadcast::Sender<Arc<wire::SourceEstimate>>,
+    stopping: tokio::sync::watch::Receiver<bool>,
+}
+
+impl MonitoringService {
+    /// A service reading the coordinator task's state and estimate stream.
+    pub fn new(
+        requests: mpsc::Sender<actor::Request>,
+        estimates: broadcast::Sender<Arc<wire::SourceEstimate>>,
+        stopping: tokio::sync::watch::Receiver<bool>,
+    ) -> Self {
+        MonitoringService { requests, estimates, stopping }
+    }
+}
+
+type EstimateStream = Pin<Box<dyn Stream<Item = Result<wire::SourceEstimate, Status>> + Send>>;
+
+#[tonic::async_trait]
+impl Monitoring for MonitoringService {
+    type WatchEstimatesStream = EstimateStream;
+
+    async fn get_state(
+        &self,
+        _: Request<wire::GetStateRequest>,
+    ) -> Result<Response<wire::CoordinatorState>, Status> {
+        let (reply, answer) = oneshot::channel();
+        self.requests
+            .send(actor::Request::GetState { reply })
+            .await
+            .map_err(|_| to_status(&ServerError::ShuttingDown))?;
+        Ok(Response::new(answer.await.map_err(|_| to_status(&ServerError::ShuttingDown))?))
+    }
+
+    async fn watch_estimates(
+        &self,
+        _: Request<wire::WatchEstimatesRequest>,
+    ) -> Result<Response<Self::WatchEstimatesStream>, Status> {
+        let rx = self.estimates.subscribe();
+        // The stream ends when the coordinator shuts down.
+        let stream = futures::stream::unfold(
+            (rx, 0u64, self.stopping.clone()),
+            |(mut rx, mut lagged, mut stop)| async move {
+                loop {
+                    let next = tokio::select! {
+                        biased;
+                        _ = stop.wait_for(|s| *s) => return None,
+                        r = rx.recv() => r,
+                    };
+                    match next {
+                        Ok(e) => {
+                            let mut e = (*e).clone();
+                            e.lagged = lagged;
+                            return Some((Ok(e), (rx, 0, stop)));
+                        }
+                        Err(RecvError::Lagged(n)) => lagged += n,
+                        Err(RecvError::Closed) => return None,
+                    }
+                }
+            },
+        );
+        Ok(Response::new(Box::pin(stream)))
+    }
+
+    async fn set_active_positioning(
+        &self,
+        _: Request<wire::SetActivePositioningRequest>,
+    ) -> Result<Response<wire::ActivePositioning>, Status> {
+        Err(Status::unimplemented("active positioning is not available in this version of the coordinator"))
+    }
+}

@@ -1,0 +1,143 @@
+//! `soundmap.v1.RobotLink`: one bidirectional stream per robot.
+
+use std::pin::Pin;
+use std::sync::Arc;
+use std::time::Instant;
+
+use futures::Stream;
+use soundmap_proto::wire::robot_link_server::RobotLink;
+use soundmap_proto::wire::robot_message::Msg;
+use soundmap_proto::{Hello, Limits, RobotInput, wire};
+use tokio::sync::{mpsc, oneshot};
+use tonic::{Request, Response, Status, Streaming};
+
+use super::actor;
+use super::auth::Authenticator;
+use super::status::to_status;
+use crate::clock::Clock;
+use crate::config::CoordinatorConfig;
+use crate::coordinator::ConnId;
+use crate::error::ServerError;
+
+/// Messages queued toward one robot before the stream counts as not reading.
+const OUTBOUND_CAPACITY: usize = 4096;
+
+/// The robot-link service.
+#[derive(Debug, Clone)]
+pub struct RobotLinkService {
+    requests: mpsc::Sender<actor::Request>,
+    clock: Arc<dyn Clock>,
+    auth: Authenticator,
+    limits: Limits,
+    stopping: tokio::sync::watch::Receiver<bool>,
+}
+
+impl RobotLinkService {
+    /// A service feeding the coordinator task through `requests`.
+    pub fn new(
+        config: &CoordinatorConfig,
+        requests: mpsc::Sender<actor::Request>,
+        clock: Arc<dyn Clock>,
+        stopping: tokio::sync::watch::Receiver<bool>,
+    ) -> Self {
+        let limits = Limits {
+            now: soundmap_proto::Stamp::ZERO,
+            max_future_ns: config.limits.max_future_ms as i64 * 1_000_000,
+            unit_vector_tolerance: config.limits.unit_vector_tolerance,
+            quaternion_tolerance: config.limits.quaternion_tolerance,
+        };
+        RobotLinkService { requests, clock, auth: Authenticator::new(&config.auth), limits, stopping }
+    }
+
+    fn limits(&self) -> Limits {
+        Limits { now: self.clock.now(), ..self.limits }
+    }
+}
+
+type ConnectStream = Pin<Box<dyn Stream<Item = Result<wire::CoordinatorMessage, Status>> + Send>>;
+
+#[tonic::async_trait]
+impl RobotLink for RobotLinkService {
+    type ConnectStream = ConnectStream;
+
+    async fn connect(
+        &self,
+        request: Request<Streaming<wire::RobotMessage>>,
+    ) -> Result<Response<Self::ConnectStream>, Status> {
+        let identity = self.auth.identify(request.metadata()).map_err(|e| to_status(&e))?;
+        let mut inbound = request.into_inner();
+        let first = inbound
+            .message()
+            .await?
+            .ok_or_else(|| Status::invalid_argument("msg: stream closed before its hello"))?;
+        let hello = match &first.msg {
+            Some(Msg::Hello(h)) => Hello::from_wire(h, &self.limits()).map_err(|e| to_status(&e.into()))?,
+            _ => return Err(Status::invalid_argument("msg: the first message of a stream must be a hello")),
+        };
+        let (outbound, rx) = mpsc::channel(OUTBOUND_CAPACITY);
+        let (reply, answer) = oneshot::channel();
+        self.requests
+            .send(actor::Request::Connect { hello, identity, outbound, reply })
+            .await
+            .map_err(|_| to_status(&ServerError::ShuttingDown))?;
+        let welcome =
+            answer.await.map_err(|_| to_status(&ServerError::ShuttingDown))?.map_err(|e| to_status(&e))?;
+        tokio::spawn(read_stream(inbound, welcome.conn, self.clone()));
+        // Queued messages go out first; on shutdown the stream ends with
+        // UNAVAILABLE so that the robot reconnects later.
+        let stream =
+            futures::stream::unfold((rx, Some(self.stopping.clone())), |(mut rx, stop)| async move {
+                let mut stop = stop?;
+                let next = tokio::select! {
+                    biased;
+                    m = rx.recv() => Some(m),
+                    _ = stop.wait_for(|s| *s) => None,
+                };
+                match next {
+                    Some(m) => m.map(|m| (Ok(m), (rx, Some(stop)))),
+                    None => Some((Err(to_status(&ServerError::ShuttingDown)), (rx, None))),
+                }
+            });
+        Ok(Response::new(Box::pin(stream)))
+    }
+}
+
+/// Reads one robot's stream until it ends: validates each message here (on
+/// the stream's own task, so validation runs in parallel across robots) and
+/// hands it to the coordinator task, which answers in order on the stream.
+async fn read_stream(mut inbound: Streaming<wire::RobotMessage>, conn: ConnId, svc: RobotLinkService) {
+    let mut stop = svc.stopping.clone();
+    loop {
+        let next = tokio::select! {
+            m = inbound.message() => m,
+            _ = stop.wait_for(|s| *s) => return,
+        };
+        let msg = match next {
+            Ok(Some(m)) => m,
+            Ok(None) => break,
+            Err(status) => {
+                tracing::debug!(conn, "robot stream ended: {status}");
+                break;
+            }
+        };
+        let received = Instant::now();
+        let sequence = match &msg.msg {
+            Some(Msg::Observation(o)) => Some(o.sequence),
+            _ => None,
+        };
+        let request = match RobotInput::from_wire(&msg, &svc.limits()) {
+            Ok(RobotInput::Observation(obs)) => actor::Request::Observation { conn, obs, received },
+            Ok(RobotInput::Heartbeat(_)) => actor::Request::Heartbeat { conn },
+            Ok(RobotInput::CommandAck(ack)) => actor::Request::CommandAck { conn, ack },
+            Ok(RobotInput::CommandProgress(progress)) => actor::Request::CommandProgress { conn, progress },
+            Ok(RobotInput::Hello(h)) => {
+                actor::Request::Rejected { conn, sequence: None, error: ServerError::SecondHello(h.robot_id) }
+            }
+            Err(e) => actor::Request::Rejected { conn, sequence, error: e.into() },
+        };
+        if svc.requests.send(request).await.is_err() {
+            return;
+        }
+    }
+    let _ = svc.requests.send(actor::Request::Disconnect { conn }).await;
+}
