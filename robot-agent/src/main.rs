@@ -261,6 +261,27 @@ struct DoaFrame {
     doas: Vec<TrackedDoa>,
 }
 
+/// Observations are sent while tracks exist, plus one empty observation when
+/// they end (so the coordinator learns the robot hears nothing); silent hops
+/// send nothing (heartbeats keep the link alive).
+#[derive(Debug, Default)]
+struct SilenceFilter {
+    previous_empty: bool,
+}
+
+impl SilenceFilter {
+    fn new() -> Self {
+        SilenceFilter { previous_empty: true }
+    }
+
+    /// Whether a frame with these DoAs is sent.
+    fn keep(&mut self, doas: &[TrackedDoa]) -> bool {
+        let keep = !(doas.is_empty() && self.previous_empty);
+        self.previous_empty = doas.is_empty();
+        keep
+    }
+}
+
 fn to_doa(t: &TrackedDirection) -> TrackedDoa {
     let sigma = t.angular_sigma_rad;
     TrackedDoa {
@@ -349,7 +370,10 @@ fn run(config_path: &Path) -> Result<()> {
     };
     let navigator = JsonLinesNavigator::open(&config.navigator.path, config.navigator.arrival_tolerance_m)?;
     let runtime = tokio::runtime::Builder::new_multi_thread().enable_all().build()?;
-    runtime.block_on(run_agent(config, hello, doa_plan, pose_plan, navigator))
+    let result = runtime.block_on(run_agent(config, hello, doa_plan, pose_plan, navigator));
+    // A read of standard input blocked in tokio's blocking pool must not hold the exit.
+    runtime.shutdown_timeout(Duration::from_millis(200));
+    result
 }
 
 fn bind(addr: std::net::SocketAddr, what: &str) -> Result<std::net::TcpListener> {
@@ -375,8 +399,12 @@ async fn run_agent(
         DoaPlan::OdasFile(frames) => {
             tokio::spawn(async move {
                 let (wall0, stamp0) = (Instant::now(), frames.first().map_or(Stamp::ZERO, |f| f.stamp));
+                let mut silence = SilenceFilter::new();
                 for f in frames {
                     tokio::time::sleep_until((wall0 + since(stamp0, f.stamp)).into()).await;
+                    if !silence.keep(&f.doas) {
+                        continue;
+                    }
                     if frames_tx.send(DoaFrame { stamp: f.stamp, doas: f.doas }).await.is_err() {
                         return;
                     }
@@ -392,7 +420,11 @@ async fn run_agent(
                 }
             });
             tokio::spawn(async move {
+                let mut silence = SilenceFilter::new();
                 while let Some(f) = odas_rx.recv().await {
+                    if !silence.keep(&f.doas) {
+                        continue;
+                    }
                     if frames_tx.send(DoaFrame { stamp: f.stamp, doas: f.doas }).await.is_err() {
                         return;
                     }
@@ -584,17 +616,15 @@ fn spawn_dsp(
     let dsp = std::thread::Builder::new()
         .name("dsp".into())
         .spawn(move || {
-            let mut previous_empty = true;
+            let mut silence = SilenceFilter::new();
             while let Ok((stamp, block)) = full_rx.recv() {
                 let r = pipeline.process_hop(stamp, &block);
                 let doas: Vec<TrackedDoa> = r.tracks.iter().filter(|t| t.confirmed).map(to_doa).collect();
                 let frame_stamp = r.stamp;
                 let _ = free_tx.send(block);
-                // Observations while tracks exist, and one empty one when they end.
-                if doas.is_empty() && previous_empty {
+                if !silence.keep(&doas) {
                     continue;
                 }
-                previous_empty = doas.is_empty();
                 if out.blocking_send(DoaFrame { stamp: frame_stamp, doas }).is_err() {
                     break;
                 }

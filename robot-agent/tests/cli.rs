@@ -324,14 +324,7 @@ async fn run_streams_tracked_doas_with_interpolated_poses_to_the_coordinator() {
     }
     std::fs::write(dir.join("traj.tum"), tum).unwrap();
     let coordinator = Coordinator::default();
-    let listener = tokio::net::TcpListener::bind("127.0.0.1:0").await.unwrap();
-    let addr = listener.local_addr().unwrap();
-    let incoming =
-        futures::stream::unfold(listener, |l| async move { Some((l.accept().await.map(|(s, _)| s), l)) });
-    let server = tonic::transport::Server::builder()
-        .add_service(wire::robot_link_server::RobotLinkServer::new(coordinator.clone()))
-        .serve_with_incoming(incoming);
-    let server = tokio::spawn(server);
+    let (addr, server) = serve(coordinator.clone()).await;
     let start_ns: i64 = 1_700_000_000_000_000_000;
     let config = format!(
         r#"robot_id = "cli-robot"
@@ -388,6 +381,77 @@ heartbeat_interval_ms = 100
     let goals = lines(&std::fs::read_to_string(dir.join("goals.jsonl")).unwrap());
     assert_eq!(goals[0]["type"], "goal");
     assert_eq!((goals[0]["command_id"].as_u64(), goals[0]["x"].as_f64()), (Some(9), Some(2.0)));
+}
+
+/// Starts the fake coordinator on a free loopback port.
+async fn serve(coordinator: Coordinator) -> (std::net::SocketAddr, tokio::task::JoinHandle<()>) {
+    let listener = tokio::net::TcpListener::bind("127.0.0.1:0").await.unwrap();
+    let addr = listener.local_addr().unwrap();
+    let incoming =
+        futures::stream::unfold(listener, |l| async move { Some((l.accept().await.map(|(s, _)| s), l)) });
+    let server = tonic::transport::Server::builder()
+        .add_service(wire::robot_link_server::RobotLinkServer::new(coordinator))
+        .serve_with_incoming(incoming);
+    (addr, tokio::spawn(async move { server.await.unwrap() }))
+}
+
+#[tokio::test(flavor = "multi_thread")]
+async fn run_bridges_odas_output_with_poses_from_standard_input() {
+    let dir = temp_dir("run-odas");
+    let fixture = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/fixtures/odas_sst_tracked.json");
+    let coordinator = Coordinator::default();
+    let (addr, server) = serve(coordinator.clone()).await;
+    let start_ns: i64 = 1_700_000_000_000_000_000;
+    let config = format!(
+        r#"robot_id = "odas-robot"
+[coordinator]
+endpoint = "http://{addr}"
+[array]
+preset = "respeaker-4"
+[doa]
+source = "odas"
+file = "{}"
+hop_len = 128
+sample_rate_hz = 16000
+start_ns = {start_ns}
+[pose]
+source = "jsonl_stdin"
+[navigator]
+path = "goals.jsonl"
+"#,
+        fixture.display()
+    );
+    std::fs::write(dir.join("agent.toml"), config).unwrap();
+    // The robot turns in place at 1 rad/s, a pose every 10 ms around the ODAS hops.
+    let mut poses = String::new();
+    for k in -10..=20 {
+        let yaw = k as f64 * 0.01;
+        let (s, c) = (yaw / 2.0).sin_cos();
+        poses += &format!(
+            "{{\"stamp_ns\": {}, \"x\": 1.0, \"y\": 2.0, \"z\": 0.0, \"qx\": 0.0, \"qy\": 0.0, \"qz\": {s}, \"qw\": {c}}}\n",
+            start_ns + k * 10_000_000
+        );
+    }
+    let cfg = dir.join("agent.toml");
+    let out = tokio::task::spawn_blocking(move || {
+        agent(&["run", "--config", cfg.to_str().unwrap()], Some(poses.into_bytes()))
+    });
+    let out = tokio::time::timeout(Duration::from_secs(60), out).await.expect("agent run timed out").unwrap();
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    server.abort();
+    let seen = coordinator.0.lock().unwrap();
+    // Hops 2–6 of the fixture have tracks (hop 1 is silent and not sent); hop k is at (k−1)·8 ms.
+    let stamps: Vec<i64> = seen.observations.iter().map(|o| o.stamp_ns - start_ns).collect();
+    assert_eq!(stamps, vec![8_000_000, 16_000_000, 24_000_000, 32_000_000, 40_000_000]);
+    let counts: Vec<usize> = seen.observations.iter().map(|o| o.doas.len()).collect();
+    assert_eq!(counts, vec![1, 1, 2, 2, 2]);
+    for o in &seen.observations {
+        let q = o.map_from_base.as_ref().unwrap().rotation.unwrap();
+        let yaw = 2.0 * q.z.atan2(q.w);
+        let t = (o.stamp_ns - start_ns) as f64 * 1e-9;
+        assert!((yaw - t).abs() < 1e-9, "yaw {yaw} at {t} s");
+        assert_eq!(o.doas[0].track_id, 1);
+    }
 }
 
 #[test]
