@@ -17,7 +17,7 @@ const SOURCE: Point3<f64> = Point3::new(2.0, 3.0, 1.12);
 
 /// Bases of two robots 3 m (horizontally) from the source, 90° apart at the source.
 fn bases() -> [Point3<f64>; 2] {
-    [SOURCE.xy().push(0.0) - nalgebra::Vector3::new(3.0, 0.0, 0.0), SOURCE.xy().push(0.0) - nalgebra::Vector3::new(0.0, 3.0, 0.0)]
+    [Point3::new(SOURCE.x - 3.0, SOURCE.y, 0.0), Point3::new(SOURCE.x, SOURCE.y - 3.0, 0.0)]
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
