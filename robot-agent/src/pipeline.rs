@@ -133,6 +133,11 @@ impl Pipeline {
         &self.srp
     }
 
+    /// The localizer, mutably (to read its work counters).
+    pub fn srp_mut(&mut self) -> &mut Srp {
+        &mut self.srp
+    }
+
     /// The tracker (birth threshold).
     pub fn tracker(&self) -> &DoaTracker {
         &self.tracker

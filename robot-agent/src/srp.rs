@@ -74,12 +74,18 @@ pub struct SrpConfig {
     pub fine_level: u32,
     /// Hierarchical (default) or exhaustive search of the fine grid.
     pub search: SearchMode,
-    /// Most coarse cells opened per peak by the branch and bound.
+    /// Most coarse cells opened by the branch and bound for the strongest peak.
     pub max_coarse_cells: usize,
+    /// Most coarse cells opened for each later peak (after suppression,
+    /// usually noise or a weaker source).
+    pub max_coarse_cells_secondary: usize,
     /// Newton refinement off the grid (default on).
     pub refine: bool,
     /// Most Newton steps per peak.
     pub refine_iterations: usize,
+    /// Peaks whose grid coherence is below this are noise for every
+    /// practical purpose: they are reported at grid resolution, unrefined.
+    pub refine_min_coherence: f64,
     /// Potential sources reported per frame (ODAS: 4).
     pub max_sources: usize,
     /// Minimum angle between two potentials of a frame, degrees.
@@ -98,8 +104,10 @@ impl Default for SrpConfig {
             fine_level: 4,
             search: SearchMode::Hierarchical,
             max_coarse_cells: 8,
+            max_coarse_cells_secondary: 3,
             refine: true,
             refine_iterations: 6,
+            refine_min_coherence: 0.05,
             max_sources: 2,
             min_separation_deg: 15.0,
             region: None,
@@ -114,6 +122,19 @@ pub struct PotentialSource {
     pub direction: Unit<Vector3<f64>>,
     /// PHAT coherence at the peak: 1 for a noise-free plane wave, ≈ 0 for noise.
     pub energy: f64,
+}
+
+/// Work done by [`Srp::process`], see [`Srp::take_stats`].
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct SrpStats {
+    /// Grid searches (one per potential).
+    pub searches: usize,
+    /// Coarse cells opened by the branch and bound.
+    pub cells_opened: usize,
+    /// Fine points whose response was computed.
+    pub fine_points: usize,
+    /// Beamformer evaluations (value, gradient, Hessian) of the refinement.
+    pub refine_evaluations: usize,
 }
 
 /// SRP-PHAT localizer of one array.
@@ -299,26 +320,53 @@ impl Srp {
             let exclusion = Exclusion { found: &self.found, cos_sep: sep.cos(), sep_rad: sep };
             let hit = match self.config.search {
                 SearchMode::Hierarchical => self.tables.search_hierarchical(
-                    &self.cc.cc,
+                    &self.cc.lin,
                     &self.cc.cc_max,
-                    self.config.max_coarse_cells,
+                    if out.is_empty() {
+                        self.config.max_coarse_cells
+                    } else {
+                        self.config.max_coarse_cells_secondary
+                    },
                     &exclusion,
                 ),
-                SearchMode::Exhaustive => self.tables.search_exhaustive(&self.cc.cc, &exclusion),
+                SearchMode::Exhaustive => self.tables.search_exhaustive(&self.cc.lin, &exclusion),
             };
             let Some((f, value)) = hit else { break };
             let grid_dir = Unit::new_normalize(self.tables.fine_dirs[f]);
-            let (direction, energy) = if self.config.refine {
-                self.refine_peak(grid_dir)
+            let grid_coherence = value as f64 / self.pair_weight(&grid_dir);
+            let refine = self.config.refine && grid_coherence >= self.config.refine_min_coherence;
+            let (direction, energy) = if refine {
+                let start = Unit::new_normalize(self.tables.quadratic_peak(&self.cc.lin, f));
+                self.refine_peak(start)
             } else {
-                (self.region.clamp(grid_dir), value as f64 / self.pair_weight(&grid_dir))
+                (self.region.clamp(grid_dir), grid_coherence)
             };
             out.push(PotentialSource { direction, energy });
             self.found.push(direction.into_inner());
             if out.len() < self.config.max_sources {
                 self.suppress(&direction);
+                if refine {
+                    // Later peaks are refined and scored on what this source leaves.
+                    self.refiner.project_out(&mut self.cc, &direction, &self.gains);
+                }
             }
         }
+    }
+
+    /// Only the front end of [`Srp::process`]: PHAT whitening and the
+    /// correlations of every pair (for benchmarks).
+    pub fn correlate_only(&mut self, spectra: &[Complex<f32>]) {
+        self.cc.whiten(spectra);
+        self.cc.correlate();
+    }
+
+    /// Work counters since the last call (then reset): how many searches,
+    /// coarse cells opened, fine points evaluated and beamformer evaluations
+    /// of the refinement.
+    pub fn take_stats(&mut self) -> SrpStats {
+        let [searches, cells, fine] = std::mem::take(&mut self.tables.counters);
+        let refine = std::mem::take(&mut self.refiner.evaluations);
+        SrpStats { searches, cells_opened: cells, fine_points: fine, refine_evaluations: refine }
     }
 
     /// Sum of the pair weights (directivity) at `d`; the number of pairs for
@@ -345,9 +393,15 @@ impl Srp {
             None => self.refiner.refine(&self.cc, start, &self.gains, iterations, self.max_step_rad),
         };
         let d = self.region.clamp(d);
+        // Normalized so that a plane wave carrying all the (remaining) energy
+        // scores 1: (P − E₀) / (((Σg)² − Σg²) · ē · K), ē the mean energy per
+        // microphone and bin (1 before any projection).
         let e0: f64 = self.gains.iter().zip(&self.cc.phat_energy).map(|(&g, &e)| (g * g * e) as f64).sum();
-        let w = self.pair_weight(&start);
-        let coherence = (local.power - e0) / (2.0 * w * self.cc.band.len() as f64);
+        let (s1, s2) =
+            self.gains.iter().fold((0.0f64, 0.0f64), |(a, b), &g| (a + g as f64, b + (g * g) as f64));
+        let k = self.cc.band.len() as f64;
+        let mean_energy = e0 / (s2 * k).max(1e-30);
+        let coherence = (local.power - e0) / ((s1 * s1 - s2) * mean_energy * k).max(1e-30);
         (d, coherence)
     }
 

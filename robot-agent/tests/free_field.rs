@@ -169,3 +169,24 @@ fn explore_outliers() {
         }
     }
 }
+
+#[test]
+#[ignore]
+fn explore_caps() {
+    let array = ArrayGeometry::load("16soundsusb-pioneer").unwrap();
+    for snr in [0.0, 10.0] {
+        let mut x = PipelineConfig::default();
+        x.srp.search = SearchMode::Exhaustive;
+        x.srp.max_sources = 1;
+        let ex = errors(&array, &x, snr, 30, 17);
+        for cap in [1, 2, 3, 4, 8] {
+            let mut h = PipelineConfig::default();
+            h.srp.max_coarse_cells = cap;
+            h.srp.max_sources = 1;
+            let eh = errors(&array, &h, snr, 30, 17);
+            let differ = eh.iter().zip(&ex).filter(|(a, b)| (*a - *b).abs() > 1e-3).count();
+            let (_, m, p95) = synth::stats(&eh);
+            println!("snr {snr} cap {cap}: {differ} of {} differ; median {m:.3} p95 {p95:.3}", eh.len());
+        }
+    }
+}

@@ -11,8 +11,11 @@
 
 use std::sync::Arc;
 
-use realfft::num_complex::Complex;
-use realfft::{ComplexToReal, RealFftPlanner};
+use rustfft::num_complex::Complex;
+use rustfft::{Fft, FftPlanner};
+
+/// Bins processed together in the vectorized loops.
+const LANES: usize = 8;
 
 /// Frequency band, in FFT bins `lo..hi` (excluding DC and Nyquist).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -41,14 +44,17 @@ pub struct CrossCorrelator {
     pub(super) pairs: Vec<(usize, usize)>,
     pub(super) band: Band,
     frame_len: usize,
-    /// PHAT spectra on the band, mic-major: `re[i*K + (k - lo)]`.
+    /// Bins per microphone in `phat_re`/`phat_im` (K rounded up to 8, zero-padded).
+    pub(super) padded: usize,
+    /// PHAT spectra on the band, mic-major: `re[i*padded + (k - lo)]`.
     pub(super) phat_re: Vec<f32>,
     pub(super) phat_im: Vec<f32>,
     /// Σ |X̃ᵢ[k]|² over bins, per microphone (K, or less for silent bins).
     pub(super) phat_energy: Vec<f32>,
-    ifft: Arc<dyn ComplexToReal<f32>>,
+    /// Complex inverse FFT of `frame_len`: two pairs' correlations per call,
+    /// as the real and imaginary parts.
+    ifft: Arc<dyn Fft<f32>>,
     spec: Vec<Complex<f32>>,
-    time: Vec<f32>,
     scratch: Vec<Complex<f32>>,
     /// Largest lag kept, samples.
     pub(super) lag_radius: usize,
@@ -56,6 +62,8 @@ pub struct CrossCorrelator {
     pub(super) stride: usize,
     /// Correlations, `pairs × stride`.
     pub(super) cc: Vec<f32>,
+    /// `[cc[n], cc[n+1] − cc[n]]`: one load per linear interpolation.
+    pub(super) lin: Vec<[f32; 2]>,
     /// Sliding maxima of `cc` over `±window[p]` lags.
     pub(super) cc_max: Vec<f32>,
     pub(super) window: Vec<usize>,
@@ -80,23 +88,24 @@ impl CrossCorrelator {
         assert!(lag_radius < frame_len / 2 && !band.is_empty() && band.lo >= 1 && band.hi <= frame_len / 2);
         let pairs: Vec<_> = (0..mics).flat_map(|i| (i + 1..mics).map(move |j| (i, j))).collect();
         assert_eq!(window.len(), pairs.len());
-        let ifft = RealFftPlanner::<f32>::new().plan_fft_inverse(frame_len);
+        let ifft = FftPlanner::<f32>::new().plan_fft_inverse(frame_len);
         let stride = 2 * lag_radius + 2;
-        let k = band.len();
+        let padded = band.len().div_ceil(LANES) * LANES;
         CrossCorrelator {
             mics,
             band,
             frame_len,
-            phat_re: vec![0.0; mics * k],
-            phat_im: vec![0.0; mics * k],
+            padded,
+            phat_re: vec![0.0; mics * padded],
+            phat_im: vec![0.0; mics * padded],
             phat_energy: vec![0.0; mics],
-            spec: ifft.make_input_vec(),
-            time: ifft.make_output_vec(),
-            scratch: ifft.make_scratch_vec(),
+            spec: vec![Complex::new(0.0, 0.0); frame_len],
+            scratch: vec![Complex::new(0.0, 0.0); ifft.get_inplace_scratch_len()],
             ifft,
             lag_radius,
             stride,
             cc: vec![0.0; pairs.len() * stride],
+            lin: vec![[0.0; 2]; pairs.len() * stride],
             cc_max: vec![0.0; pairs.len() * stride],
             tmp: vec![0.0; 2 * stride],
             window,
@@ -108,11 +117,11 @@ impl CrossCorrelator {
     /// channel-major, `frame_len/2 + 1` bins per channel). Silent bins give 0.
     pub fn whiten(&mut self, spectra: &[Complex<f32>]) {
         let bins = self.frame_len / 2 + 1;
-        let k = self.band.len();
+        let (k, padded) = (self.band.len(), self.padded);
         for i in 0..self.mics {
             let src = &spectra[i * bins + self.band.lo..i * bins + self.band.hi];
-            let re = &mut self.phat_re[i * k..(i + 1) * k];
-            let im = &mut self.phat_im[i * k..(i + 1) * k];
+            let re = &mut self.phat_re[i * padded..i * padded + k];
+            let im = &mut self.phat_im[i * padded..i * padded + k];
             let mut energy = 0.0;
             for ((x, r), m) in src.iter().zip(re.iter_mut()).zip(im.iter_mut()) {
                 let p = x.re * x.re + x.im * x.im;
@@ -126,36 +135,98 @@ impl CrossCorrelator {
     }
 
     /// Computes `cc` of every pair from the whitened spectra (inverse FFT of
-    /// each PHAT cross-spectrum), then the sliding maxima `cc_max`.
+    /// the PHAT cross-spectra, two pairs per complex FFT), then `lin` and the
+    /// sliding maxima `cc_max`.
     pub fn correlate(&mut self) {
-        let k = self.band.len();
-        let n = self.frame_len;
-        let r = self.lag_radius;
+        let (k, padded) = (self.band.len(), self.padded);
+        let (n, r, lo) = (self.frame_len, self.lag_radius, self.band.lo);
         let scale = 1.0 / (2.0 * k as f32);
-        for (p, &(i, j)) in self.pairs.iter().enumerate() {
-            self.spec.fill(Complex::new(0.0, 0.0));
-            let (ar, ai) = (&self.phat_re[i * k..(i + 1) * k], &self.phat_im[i * k..(i + 1) * k]);
-            let (br, bi) = (&self.phat_re[j * k..(j + 1) * k], &self.phat_im[j * k..(j + 1) * k]);
-            for (q, s) in self.spec[self.band.lo..self.band.hi].iter_mut().enumerate() {
-                // X̃ᵢ · conj(X̃ⱼ)
-                *s = Complex::new(ar[q] * br[q] + ai[q] * bi[q], ai[q] * br[q] - ar[q] * bi[q]);
+        let pairs = self.pairs.len();
+        for first in (0..pairs).step_by(2) {
+            // Z[k] = C₁ + jC₂ and Z[N−k] = C₁* + jC₂*: the inverse FFT is cc₁ + j cc₂.
+            let (i1, j1) = self.pairs[first];
+            let (i2, j2) = if first + 1 < pairs { self.pairs[first + 1] } else { (i1, j1) };
+            let w2 = if first + 1 < pairs { 1.0 } else { 0.0 };
+            let (ar, ai) = (
+                &self.phat_re[i1 * padded..(i1 + 1) * padded],
+                &self.phat_im[i1 * padded..(i1 + 1) * padded],
+            );
+            let (br, bi) = (
+                &self.phat_re[j1 * padded..(j1 + 1) * padded],
+                &self.phat_im[j1 * padded..(j1 + 1) * padded],
+            );
+            let (cr, ci) = (
+                &self.phat_re[i2 * padded..(i2 + 1) * padded],
+                &self.phat_im[i2 * padded..(i2 + 1) * padded],
+            );
+            let (dr, di) = (
+                &self.phat_re[j2 * padded..(j2 + 1) * padded],
+                &self.phat_im[j2 * padded..(j2 + 1) * padded],
+            );
+            self.spec[..lo].fill(Complex::new(0.0, 0.0));
+            self.spec[lo + k..=n - lo - k].fill(Complex::new(0.0, 0.0));
+            self.spec[n - lo + 1..].fill(Complex::new(0.0, 0.0));
+            let (pos, neg) = self.spec.split_at_mut(n / 2 + 1);
+            // Bin kb = lo + q is pos[lo + q]; bin N − kb is neg[n/2 − 1 − kb].
+            let pos = &mut pos[lo..lo + k];
+            let neg = &mut neg[n / 2 - lo - k..n / 2 - lo];
+            for base in (0..padded).step_by(LANES) {
+                let lanes = |v: &[f32]| -> [f32; LANES] {
+                    v[base..base + LANES].try_into().expect("padded to LANES")
+                };
+                let (ar, ai, br, bi) = (lanes(ar), lanes(ai), lanes(br), lanes(bi));
+                let (cr, ci, dr, di) = (lanes(cr), lanes(ci), lanes(dr), lanes(di));
+                // C = X̃ᵢ · conj(X̃ⱼ) for both pairs; Z = C₁ + jC₂ and its mirror C₁* + jC₂*.
+                let mut zp = [[0f32; LANES]; 2];
+                let mut zn = [[0f32; LANES]; 2];
+                for l in 0..LANES {
+                    let (c1r, c1i) = (ar[l] * br[l] + ai[l] * bi[l], ai[l] * br[l] - ar[l] * bi[l]);
+                    let (c2r, c2i) =
+                        (w2 * (cr[l] * dr[l] + ci[l] * di[l]), w2 * (ci[l] * dr[l] - cr[l] * di[l]));
+                    zp[0][l] = c1r - c2i;
+                    zp[1][l] = c1i + c2r;
+                    zn[0][l] = c1r + c2i;
+                    zn[1][l] = c2r - c1i;
+                }
+                for l in 0..LANES.min(k.saturating_sub(base)) {
+                    let q = base + l;
+                    pos[q] = Complex::new(zp[0][l], zp[1][l]);
+                    neg[k - 1 - q] = Complex::new(zn[0][l], zn[1][l]);
+                }
             }
-            self.ifft
-                .process_with_scratch(&mut self.spec, &mut self.time, &mut self.scratch)
-                .expect("buffer sizes are planned in new(); DC and Nyquist are zero");
-            let out = &mut self.cc[p * self.stride..(p + 1) * self.stride];
-            // Lags −R..−1 are at the end of the circular correlation.
-            for (o, &t) in out[..r].iter_mut().zip(&self.time[n - r..]) {
-                *o = t * scale;
+            self.ifft.process_with_scratch(&mut self.spec, &mut self.scratch);
+            for (slot, p) in [first, first + 1].into_iter().enumerate() {
+                if p >= pairs {
+                    break;
+                }
+                let out = &mut self.cc[p * self.stride..(p + 1) * self.stride];
+                // Lags −R..−1 are at the end of the circular correlation.
+                let (neg, pos) = (&self.spec[n - r..], &self.spec[..=r]);
+                if slot == 0 {
+                    out[..r].iter_mut().zip(neg).for_each(|(o, z)| *o = z.re * scale);
+                    out[r..=2 * r].iter_mut().zip(pos).for_each(|(o, z)| *o = z.re * scale);
+                } else {
+                    out[..r].iter_mut().zip(neg).for_each(|(o, z)| *o = z.im * scale);
+                    out[r..=2 * r].iter_mut().zip(pos).for_each(|(o, z)| *o = z.im * scale);
+                }
+                out[2 * r + 1] = out[2 * r];
             }
-            for (o, &t) in out[r..=2 * r].iter_mut().zip(&self.time[..=r]) {
-                *o = t * scale;
-            }
-            out[2 * r + 1] = out[2 * r];
         }
-        for p in 0..self.pairs.len() {
-            self.sliding_max(p);
+        for p in 0..pairs {
+            self.finish_row(p);
         }
+    }
+
+    /// Updates `lin` and `cc_max` of pair `p` from its `cc` row.
+    fn finish_row(&mut self, p: usize) {
+        let s = self.stride;
+        let row = &self.cc[p * s..(p + 1) * s];
+        let lin = &mut self.lin[p * s..(p + 1) * s];
+        for ((l, &a), &b) in lin.iter_mut().zip(row).zip(&row[1..]) {
+            *l = [a, b - a];
+        }
+        lin[s - 1] = [row[s - 1], 0.0];
+        self.sliding_max(p);
     }
 
     /// `cc_max[p][n] = max(cc[p][n−w..=n+w])` (clipped at the stored lags).
@@ -168,18 +239,17 @@ impl CrossCorrelator {
             dst.copy_from_slice(src);
             return;
         }
-        // Doubling: after step `h`, a[n] = max(src[n..n+span]).
-        let (a, b) = self.tmp.split_at_mut(s);
+        // Doubling: after the step of `span`, a[n] = max(src[n..n+2·span]).
+        let (mut a, mut b) = self.tmp.split_at_mut(s);
         a.copy_from_slice(src);
         let width = 2 * w + 1;
         let mut span = 1;
         while span * 2 <= width {
-            for q in 0..s - span {
-                let (x, y) = (a[q], a[q + span]);
-                b[q] = if x > y { x } else { y };
+            for ((o, &x), &y) in b.iter_mut().zip(a.iter()).zip(&a[span..]) {
+                *o = if x > y { x } else { y };
             }
             b[s - span..].copy_from_slice(&a[s - span..]);
-            a.copy_from_slice(b);
+            std::mem::swap(&mut a, &mut b);
             span *= 2;
         }
         // Interior: max over [n−w, n+w] = max(a[n−w], a[n+w+1−span]).
@@ -202,7 +272,19 @@ impl CrossCorrelator {
         let lo = c.saturating_sub(half);
         let hi = (c + 1 + half).min(s - 1);
         self.cc[p * s + lo..=p * s + hi].fill(0.0);
-        self.sliding_max(p);
+        // Only entries that read the zeroed lags change.
+        let row = &self.cc[p * s..(p + 1) * s];
+        for q in lo.saturating_sub(1)..=hi {
+            let next = if q + 1 < s { row[q + 1] } else { row[q] };
+            self.lin[p * s + q] = [row[q], next - row[q]];
+        }
+        let w = self.window[p];
+        let (a, b) = (lo.saturating_sub(w), (hi + w).min(s - 1));
+        for q in a..=b {
+            let (l, h) = (q.saturating_sub(w), (q + w).min(s - 1));
+            self.cc_max[p * s + q] =
+                row[l..=h].iter().fold(f32::NEG_INFINITY, |m, &v| if v > m { v } else { m });
+        }
     }
 }
 

@@ -11,12 +11,22 @@
 //!
 //! Tangent coordinates `(u, v)` at `d` with basis `(e₁, e₂)`:
 //! `d(u, v) ≈ d(1 − (u²+v²)/2) + u e₁ + v e₂`, radians.
+//!
+//! The inner loops run over bins in chunks of [`LANES`] with fixed-size
+//! arrays so that they vectorize.
 
 use nalgebra::{Unit, Vector3};
 
 use super::phat::CrossCorrelator;
 
+/// Bins processed together in the inner loops.
 const LANES: usize = 8;
+/// Accumulators per bin: Σ Y, Σ aY, Σ bY, Σ cY, Σ b²Y, Σ bcY, Σ c²Y (complex).
+const ACCS: usize = 7;
+/// A Newton step shorter than this is taken without checking and ends the
+/// refinement (radians, 0.03°): near the peak Newton converges quadratically,
+/// so what remains after it is far below the data's noise.
+const STEP_TOLERANCE: f64 = 5e-4;
 
 /// Value, gradient and Hessian of `Σₖ |Bₖ|²` in tangent coordinates.
 #[derive(Clone, Copy, Debug, Default)]
@@ -34,16 +44,24 @@ pub struct Local {
 pub struct Refiner {
     /// Microphone positions divided by the speed of sound, seconds per unit direction.
     delays: Vec<Vector3<f64>>,
-    /// Angular frequency of the first band bin and bin spacing, rad/s.
-    omega0: f64,
+    /// Bin spacing, rad/s, and index of the first band bin.
     domega: f64,
+    first_bin: usize,
     bins: usize,
-    /// Per-bin sums over microphones: 7 complex accumulators, `[acc][re/im][bin]`.
+    padded: usize,
+    /// ωₖ and ωₖ² per bin (rad/s), padded with zeros.
+    omega: Vec<f32>,
+    omega2: Vec<f32>,
+    /// Per-bin accumulators, `[acc][re | im][padded]`.
     sums: Vec<f32>,
+    /// Scratch: one microphone's Y = X̃·phasor, re and im.
+    yr: Vec<f32>,
+    yi: Vec<f32>,
+    /// Scratch: phasors of every microphone (for the projection).
+    ph: Vec<f32>,
+    /// Beamformer evaluations since the counter was last read.
+    pub(super) evaluations: usize,
 }
-
-/// Accumulators (index into `sums`): Σ Y, Σ aY, Σ bY, Σ cY, Σ b²Y, Σ bcY, Σ c²Y.
-const ACCS: usize = 7;
 
 impl Refiner {
     /// `positions` in metres (array frame), `speed_of_sound` in m/s; the band
@@ -58,13 +76,73 @@ impl Refiner {
     ) -> Self {
         let domega = 2.0 * std::f64::consts::PI * fs / frame_len as f64;
         let padded = bins.div_ceil(LANES) * LANES;
+        let omega: Vec<f32> =
+            (0..padded).map(|k| if k < bins { (domega * (lo + k) as f64) as f32 } else { 0.0 }).collect();
         Refiner {
             delays: positions.iter().map(|p| p / speed_of_sound).collect(),
-            omega0: domega * lo as f64,
             domega,
+            first_bin: lo,
             bins,
+            padded,
+            omega2: omega.iter().map(|w| w * w).collect(),
+            omega,
             sums: vec![0.0; ACCS * 2 * padded],
+            yr: vec![0.0; padded],
+            yi: vec![0.0; padded],
+            ph: vec![0.0; 2 * positions.len() * padded],
+            evaluations: 0,
         }
+    }
+
+    /// Writes `Y[k] = X̃ᵢ[k] e^{−jωₖ a}` of microphone `i` to `yr`/`yi`, and
+    /// the phasors to `ph` when `keep_phasors`.
+    fn steer(&mut self, cc: &CrossCorrelator, i: usize, a: f64, keep_phasors: bool) {
+        let (k, padded) = (self.bins, self.padded);
+        // One sincos: e^{−jΔω a}; the start and the 8-bin step are its powers.
+        let (s1, c1) = (-self.domega * a).sin_cos();
+        let cmul = |(ar, ai): (f64, f64), (br, bi): (f64, f64)| (ar * br - ai * bi, ar * bi + ai * br);
+        let mut c0s0 = (1.0, 0.0);
+        for _ in 0..self.first_bin {
+            c0s0 = cmul(c0s0, (c1, s1));
+        }
+        let (c0, s0) = c0s0;
+        let sq2 = cmul((c1, s1), (c1, s1));
+        let sq4 = cmul(sq2, sq2);
+        let (c8, s8) = cmul(sq4, sq4);
+        let mut pr = [0f32; LANES];
+        let mut pi = [0f32; LANES];
+        let (mut r, mut m) = (c0, s0);
+        for l in 0..LANES {
+            pr[l] = r as f32;
+            pi[l] = m as f32;
+            (r, m) = (r * c1 - m * s1, r * s1 + m * c1);
+        }
+        let (c8, s8) = (c8 as f32, s8 as f32);
+        let xr = &cc.phat_re[i * padded..(i + 1) * padded];
+        let xi = &cc.phat_im[i * padded..(i + 1) * padded];
+        let (phr, phi) = self.ph[2 * i * padded..2 * (i + 1) * padded].split_at_mut(padded);
+        for (((((yr, yi), xr), xi), phr), phi) in self
+            .yr
+            .chunks_exact_mut(LANES)
+            .zip(self.yi.chunks_exact_mut(LANES))
+            .zip(xr.chunks_exact(LANES))
+            .zip(xi.chunks_exact(LANES))
+            .zip(phr.chunks_exact_mut(LANES))
+            .zip(phi.chunks_exact_mut(LANES))
+        {
+            for l in 0..LANES {
+                yr[l] = xr[l] * pr[l] - xi[l] * pi[l];
+                yi[l] = xr[l] * pi[l] + xi[l] * pr[l];
+                if keep_phasors {
+                    phr[l] = pr[l];
+                    phi[l] = pi[l];
+                }
+                let nr = pr[l] * c8 - pi[l] * s8;
+                pi[l] = pr[l] * s8 + pi[l] * c8;
+                pr[l] = nr;
+            }
+        }
+        debug_assert!(k <= padded);
     }
 
     /// Power, gradient and Hessian at `d` in the basis `(e1, e2)`, with
@@ -81,92 +159,70 @@ impl Refiner {
         gains: &[f32],
         curvature: bool,
     ) -> Local {
-        let k = self.bins;
-        let padded = k.div_ceil(LANES) * LANES;
+        self.evaluations += 1;
+        let padded = self.padded;
         self.sums.fill(0.0);
-        for (i, q) in self.delays.iter().enumerate() {
+        for i in 0..self.delays.len() {
             let g = gains[i];
             if g == 0.0 {
                 continue;
             }
-            let (a, b, c) = (q.dot(d), q.dot(e1), q.dot(e2));
-            let (af, bf, cf) = (a as f32, b as f32, c as f32);
-            let ac = if curvature { af } else { 0.0 };
-            let w = [g, g * ac, g * bf, g * cf, g * bf * bf, g * bf * cf, g * cf * cf];
-            // Phasor e^{−jωₖ a} for the 8 lanes of a chunk, advanced by 8 bins per chunk.
-            let (s0, c0) = (-self.omega0 * a).sin_cos();
-            let (s1, c1) = (-self.domega * a).sin_cos();
-            let (s8, c8) = (-self.domega * a * LANES as f64).sin_cos();
-            let mut pr = [0f32; LANES];
-            let mut pi = [0f32; LANES];
-            let (mut r, mut m) = (c0, s0);
-            for l in 0..LANES {
-                pr[l] = r as f32;
-                pi[l] = m as f32;
-                (r, m) = (r * c1 - m * s1, r * s1 + m * c1);
-            }
-            let (c8, s8) = (c8 as f32, s8 as f32);
-            let xr = &cc.phat_re[i * k..(i + 1) * k];
-            let xi = &cc.phat_im[i * k..(i + 1) * k];
-            for chunk in 0..padded / LANES {
-                let base = chunk * LANES;
-                let mut yr = [0f32; LANES];
-                let mut yi = [0f32; LANES];
-                for l in 0..LANES {
-                    let kk = base + l;
-                    let (x_r, x_i) = if kk < k { (xr[kk], xi[kk]) } else { (0.0, 0.0) };
-                    yr[l] = x_r * pr[l] - x_i * pi[l];
-                    yi[l] = x_r * pi[l] + x_i * pr[l];
-                    let nr = pr[l] * c8 - pi[l] * s8;
-                    pi[l] = pr[l] * s8 + pi[l] * c8;
-                    pr[l] = nr;
+            let q = self.delays[i];
+            let (a, b, c) = (q.dot(d), q.dot(e1) as f32, q.dot(e2) as f32);
+            self.steer(cc, i, a, false);
+            let ac = if curvature { a as f32 } else { 0.0 };
+            let w = [g, g * ac, g * b, g * c, g * b * b, g * b * c, g * c * c];
+            for (acc, &wt) in w.iter().enumerate() {
+                if wt == 0.0 {
+                    continue;
                 }
-                for (acc, &wt) in w.iter().enumerate() {
-                    let off = acc * 2 * padded + base;
-                    let (re, rest) = self.sums[off..].split_at_mut(padded);
-                    for l in 0..LANES {
-                        re[l] += wt * yr[l];
-                        rest[l] += wt * yi[l];
-                    }
+                let (re, im) = self.sums[acc * 2 * padded..(acc + 1) * 2 * padded].split_at_mut(padded);
+                for (r, &y) in re.iter_mut().zip(&self.yr) {
+                    *r += wt * y;
+                }
+                for (m, &y) in im.iter_mut().zip(&self.yi) {
+                    *m += wt * y;
                 }
             }
         }
-        let mut out = Local::default();
-        let s = |acc: usize, kk: usize| -> (f64, f64) {
-            let off = acc * 2 * padded;
-            (self.sums[off + kk] as f64, self.sums[off + padded + kk] as f64)
+        // Per bin: B, its derivatives, and the power's derivatives, in lanes.
+        let s = |acc: usize| -> (&[f32], &[f32]) {
+            self.sums[acc * 2 * padded..(acc + 1) * 2 * padded].split_at(padded)
         };
-        for kk in 0..k {
-            let om = self.omega0 + self.domega * kk as f64;
-            let om2 = om * om;
-            let b = s(0, kk);
-            let sa = s(1, kk);
-            let sb = s(2, kk);
-            let sc = s(3, kk);
-            let sbb = s(4, kk);
-            let sbc = s(5, kk);
-            let scc = s(6, kk);
-            // B_u = −jω Σ bY, B_v = −jω Σ cY
-            let bu = (om * sb.1, -om * sb.0);
-            let bv = (om * sc.1, -om * sc.0);
-            // B_uu = −ω² Σ b²Y + jω Σ aY, B_vv likewise, B_uv = −ω² Σ bcY
-            let buu = (-om2 * sbb.0 - om * sa.1, -om2 * sbb.1 + om * sa.0);
-            let bvv = (-om2 * scc.0 - om * sa.1, -om2 * scc.1 + om * sa.0);
-            let buv = (-om2 * sbc.0, -om2 * sbc.1);
-            let re = |x: (f64, f64), y: (f64, f64)| x.0 * y.0 + x.1 * y.1; // Re(x* y)
-            out.power += re(b, b);
-            out.grad[0] += 2.0 * re(b, bu);
-            out.grad[1] += 2.0 * re(b, bv);
-            out.hess[0] += 2.0 * (re(bu, bu) + re(b, buu));
-            out.hess[1] += 2.0 * (re(bu, bv) + re(b, buv));
-            out.hess[2] += 2.0 * (re(bv, bv) + re(b, bvv));
+        let ((b_r, b_i), (sa_r, sa_i), (sb_r, sb_i), (sc_r, sc_i)) = (s(0), s(1), s(2), s(3));
+        let ((sbb_r, sbb_i), (sbc_r, sbc_i), (scc_r, scc_i)) = (s(4), s(5), s(6));
+        let mut acc = [[0f32; LANES]; 6];
+        for base in (0..padded).step_by(LANES) {
+            for l in 0..LANES {
+                let k = base + l;
+                let (om, om2) = (self.omega[k], self.omega2[k]);
+                let (br, bi) = (b_r[k], b_i[k]);
+                // B_u = −jω Σ bY, B_v = −jω Σ cY
+                let (bur, bui) = (om * sb_i[k], -om * sb_r[k]);
+                let (bvr, bvi) = (om * sc_i[k], -om * sc_r[k]);
+                // B_uu = −ω² Σ b²Y + jω Σ aY, B_vv likewise, B_uv = −ω² Σ bcY
+                let (buur, buui) = (-om2 * sbb_r[k] - om * sa_i[k], -om2 * sbb_i[k] + om * sa_r[k]);
+                let (bvvr, bvvi) = (-om2 * scc_r[k] - om * sa_i[k], -om2 * scc_i[k] + om * sa_r[k]);
+                let (buvr, buvi) = (-om2 * sbc_r[k], -om2 * sbc_i[k]);
+                acc[0][l] += br * br + bi * bi;
+                acc[1][l] += br * bur + bi * bui;
+                acc[2][l] += br * bvr + bi * bvi;
+                acc[3][l] += bur * bur + bui * bui + br * buur + bi * buui;
+                acc[4][l] += bur * bvr + bui * bvi + br * buvr + bi * buvi;
+                acc[5][l] += bvr * bvr + bvi * bvi + br * bvvr + bi * bvvi;
+            }
         }
-        out
+        let sum = |a: &[f32; LANES]| a.iter().map(|&v| v as f64).sum::<f64>();
+        Local {
+            power: sum(&acc[0]),
+            grad: [2.0 * sum(&acc[1]), 2.0 * sum(&acc[2])],
+            hess: [2.0 * sum(&acc[3]), 2.0 * sum(&acc[4]), 2.0 * sum(&acc[5])],
+        }
     }
 
     /// Newton ascent from `d0`: at most `iterations` steps, each at most
-    /// `max_step_rad`, backtracking when the power drops. Returns the refined
-    /// direction and the power there.
+    /// `max_step_rad`, backtracking when the power drops, stopping once a
+    /// step is below 1e-4 rad. Returns the refined direction and the power.
     pub fn refine(
         &mut self,
         cc: &CrossCorrelator,
@@ -180,6 +236,10 @@ impl Refiner {
         let mut cur = self.local(cc, &d, &e1, &e2, gains, true);
         for _ in 0..iterations {
             let mut step = newton_step(&cur, max_step_rad);
+            if norm(step) < STEP_TOLERANCE {
+                d = exp_map(&d, &e1, &e2, step);
+                break;
+            }
             let mut accepted = false;
             for _ in 0..4 {
                 let cand = exp_map(&d, &e1, &e2, step);
@@ -192,16 +252,13 @@ impl Refiner {
                 }
                 step = [0.5 * step[0], 0.5 * step[1]];
             }
-            let len = (step[0] * step[0] + step[1] * step[1]).sqrt();
-            if !accepted || len < 2e-5 {
+            if !accepted {
                 break;
             }
         }
         (d, cur)
     }
-}
 
-impl Refiner {
     /// Newton ascent for a planar array with unit normal `n`: the delays only
     /// depend on the in-plane part `h` of the direction, so the search runs
     /// on `h` (linear coordinates, no grazing-angle degeneracy) and the
@@ -219,12 +276,8 @@ impl Refiner {
         let (e1, e2) = tangent_basis(n);
         let side = if n.dot(&d0) >= 0.0 { 1.0 } else { -1.0 };
         let lift = |h: [f64; 2]| -> Unit<Vector3<f64>> {
-            let mut h = h;
-            let r2 = h[0] * h[0] + h[1] * h[1];
-            if r2 > 1.0 {
-                let r = r2.sqrt();
-                h = [h[0] / r, h[1] / r];
-            }
+            let r = norm(h);
+            let h = if r > 1.0 { [h[0] / r, h[1] / r] } else { h };
             let up = (1.0 - h[0] * h[0] - h[1] * h[1]).max(0.0).sqrt();
             Unit::new_normalize(e1 * h[0] + e2 * h[1] + n.into_inner() * (side * up))
         };
@@ -232,6 +285,10 @@ impl Refiner {
         let mut cur = self.local(cc, &lift(h), &e1, &e2, gains, false);
         for _ in 0..iterations {
             let mut step = newton_step(&cur, max_step);
+            if norm(step) < STEP_TOLERANCE {
+                h = [h[0] + step[0], h[1] + step[1]];
+                break;
+            }
             let mut accepted = false;
             for _ in 0..4 {
                 let cand = [h[0] + step[0], h[1] + step[1]];
@@ -243,13 +300,56 @@ impl Refiner {
                 }
                 step = [0.5 * step[0], 0.5 * step[1]];
             }
-            let len = (step[0] * step[0] + step[1] * step[1]).sqrt();
-            if !accepted || len < 2e-5 {
+            if !accepted {
                 break;
             }
         }
         (lift(h), cur)
     }
+
+    /// Removes the plane wave from `d` from the whitened spectra: per bin,
+    /// the projection of `X̃` on the steering vector `vᵢ = gᵢ e^{jωₖpᵢ·d/c}`
+    /// is subtracted (`X̃ ← X̃ − v (vᴴX̃)/|v|²`), so that a later refinement
+    /// or coherence does not see that source's sidelobes.
+    pub fn project_out(&mut self, cc: &mut CrossCorrelator, d: &Vector3<f64>, gains: &[f32]) {
+        let padded = self.padded;
+        let norm2: f32 = gains.iter().map(|g| g * g).sum();
+        if norm2 <= 0.0 {
+            return;
+        }
+        // B (into sums[0]) and every microphone's phasors (into ph).
+        self.sums[..2 * padded].fill(0.0);
+        for i in 0..self.delays.len() {
+            let a = self.delays[i].dot(d);
+            self.steer(cc, i, a, true);
+            let g = gains[i];
+            let (re, im) = self.sums[..2 * padded].split_at_mut(padded);
+            for ((r, m), (&yr, &yi)) in re.iter_mut().zip(im.iter_mut()).zip(self.yr.iter().zip(&self.yi)) {
+                *r += g * yr;
+                *m += g * yi;
+            }
+        }
+        let (br, bi) = self.sums[..2 * padded].split_at(padded);
+        for i in 0..self.delays.len() {
+            let g = gains[i] / norm2;
+            let (phr, phi) = self.ph[2 * i * padded..2 * (i + 1) * padded].split_at(padded);
+            let xr = &mut cc.phat_re[i * padded..(i + 1) * padded];
+            let xi = &mut cc.phat_im[i * padded..(i + 1) * padded];
+            let mut energy = 0.0f32;
+            for k in 0..padded {
+                // v_i = g_i conj(ph_i); X̃ −= v · B / |v|²
+                let (pr, pi) = (phr[k], -phi[k]);
+                xr[k] -= g * (pr * br[k] - pi * bi[k]);
+                xi[k] -= g * (pr * bi[k] + pi * br[k]);
+                energy += xr[k] * xr[k] + xi[k] * xi[k];
+            }
+            cc.phat_energy[i] = energy;
+        }
+    }
+}
+
+fn norm([u, v]: [f64; 2]) -> f64 {
+    (u * u + v * v).sqrt()
 }
 
 /// Newton step on `local` (gradient step of a quarter of `max_step` where
@@ -261,10 +361,10 @@ fn newton_step(local: &Local, max_step: f64) -> [f64; 2] {
     let step = if huu < 0.0 && det > 0.0 {
         [-(hvv * gu - huv * gv) / det, -(-huv * gu + huu * gv) / det]
     } else {
-        let n = (gu * gu + gv * gv).sqrt().max(1e-30);
+        let n = norm([gu, gv]).max(1e-30);
         [0.25 * max_step * gu / n, 0.25 * max_step * gv / n]
     };
-    let len = (step[0] * step[0] + step[1] * step[1]).sqrt();
+    let len = norm(step);
     if len > max_step { [step[0] * max_step / len, step[1] * max_step / len] } else { step }
 }
 

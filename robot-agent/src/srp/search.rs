@@ -28,8 +28,10 @@ pub struct SearchTables {
     stride: usize,
     /// Fine points kept, grouped by cell.
     pub(super) fine_dirs: Vec<Vector3<f64>>,
-    /// `fine_tau[f*P + p] = τₚ(d_f) + R` (fractional index in pair `p`'s row).
-    fine_tau: Vec<f32>,
+    /// `fine_idx[f*P + p] = p·stride + ⌊τₚ(d_f) + R⌋` (index into the correlation rows).
+    fine_idx: Vec<u32>,
+    /// Fractional part of `τₚ(d_f) + R`.
+    fine_frac: Vec<f32>,
     /// Directivity weights per (fine point, pair), when any microphone is directional.
     fine_weight: Option<Vec<f32>>,
     fine_nb_offsets: Vec<u32>,
@@ -49,6 +51,12 @@ pub struct SearchTables {
     // Per-frame scratch.
     coarse_val: Vec<f32>,
     cell_open: Vec<bool>,
+    /// Fine values computed in the current search (valid when `cache_gen[f] == generation`).
+    cache: Vec<f32>,
+    cache_gen: Vec<u32>,
+    generation: u32,
+    /// Counters since last read: searches, cells opened, fine points evaluated.
+    pub(super) counters: [usize; 3],
 }
 
 /// Which fine points are excluded (too close to an earlier potential).
@@ -166,8 +174,13 @@ impl SearchTables {
         SearchTables {
             pairs,
             stride: 0,
-            fine_tau: Vec::new(),
+            fine_idx: Vec::new(),
+            fine_frac: Vec::new(),
             coarse_idx: Vec::new(),
+            cache: vec![0.0; fine_dirs.len()],
+            cache_gen: vec![0; fine_dirs.len()],
+            generation: 0,
+            counters: [0; 3],
             fine_weight,
             fine_nb_offsets,
             fine_nb,
@@ -190,12 +203,15 @@ impl SearchTables {
         let r = self.lag_radius();
         self.stride = 2 * r + 2;
         let rf = r as f64;
-        self.fine_tau = self
-            .fine_dirs
-            .iter()
-            .flat_map(|d| pair_axes.iter().map(move |a| (a.dot(d) + rf) as f32))
-            .collect();
         let stride = self.stride;
+        for d in &self.fine_dirs {
+            for (p, a) in pair_axes.iter().enumerate() {
+                let t = a.dot(d) + rf;
+                let i = t.floor();
+                self.fine_idx.push((p * stride) as u32 + i as u32);
+                self.fine_frac.push((t - i) as f32);
+            }
+        }
         self.coarse_idx = self
             .coarse_dirs
             .iter()
@@ -224,31 +240,58 @@ impl SearchTables {
         self.coarse_dirs.len()
     }
 
-    /// Fine response (sum over pairs of the interpolated correlation) at fine point `f`.
+    /// Fine response (sum over pairs of the linearly interpolated
+    /// correlation) at fine point `f`; `lin` holds `[cc[n], cc[n+1] − cc[n]]`.
     #[inline]
-    pub fn fine_value(&self, cc: &[f32], f: usize) -> f32 {
-        let taus = &self.fine_tau[f * self.pairs..(f + 1) * self.pairs];
-        let mut acc = 0.0f32;
+    pub fn fine_value(&self, lin: &[[f32; 2]], f: usize) -> f32 {
+        let range = f * self.pairs..(f + 1) * self.pairs;
+        let (idx, frac) = (&self.fine_idx[range.clone()], &self.fine_frac[range.clone()]);
         match &self.fine_weight {
             None => {
-                for (&t, row) in taus.iter().zip(cc.chunks_exact(self.stride)) {
-                    let i = t as usize;
-                    let a = t - i as f32;
-                    let (x0, x1) = (row[i], row[i + 1]);
-                    acc += x0 + a * (x1 - x0);
+                // Independent accumulators: the sum is bound by loads, not by add latency.
+                let mut acc = [0f32; 8];
+                let (ic, fc) = (idx.chunks_exact(8), frac.chunks_exact(8));
+                let (ir, fr) = (ic.remainder(), fc.remainder());
+                for (i8, f8) in ic.zip(fc) {
+                    for l in 0..8 {
+                        let [c, d] = lin[i8[l] as usize];
+                        acc[l] += c + f8[l] * d;
+                    }
                 }
+                for (&i, &a) in ir.iter().zip(fr) {
+                    let [c, d] = lin[i as usize];
+                    acc[0] += c + a * d;
+                }
+                acc.iter().sum()
             }
             Some(w) => {
-                let w = &w[f * self.pairs..(f + 1) * self.pairs];
-                for ((&t, row), &g) in taus.iter().zip(cc.chunks_exact(self.stride)).zip(w) {
-                    let i = t as usize;
-                    let a = t - i as f32;
-                    let (x0, x1) = (row[i], row[i + 1]);
-                    acc += g * (x0 + a * (x1 - x0));
+                let mut acc = 0f32;
+                for ((&i, &a), &g) in idx.iter().zip(frac).zip(&w[range]) {
+                    let [c, d] = lin[i as usize];
+                    acc += g * (c + a * d);
                 }
+                acc
             }
         }
-        acc
+    }
+
+    /// [`Self::fine_value`] through the per-search cache.
+    fn cached(&mut self, lin: &[[f32; 2]], f: usize) -> f32 {
+        if self.cache_gen[f] != self.generation {
+            self.cache[f] = self.fine_value(lin, f);
+            self.cache_gen[f] = self.generation;
+            self.counters[2] += 1;
+        }
+        self.cache[f]
+    }
+
+    fn new_generation(&mut self) {
+        self.generation = self.generation.wrapping_add(1);
+        if self.generation == 0 {
+            self.cache_gen.fill(0);
+            self.generation = 1;
+        }
+        self.counters[0] += 1;
     }
 
     fn coarse_values(&mut self, cc_max: &[f32]) {
@@ -256,7 +299,7 @@ impl SearchTables {
         for (c, v) in self.coarse_val.iter_mut().enumerate() {
             let idx = &self.coarse_idx[c * p..(c + 1) * p];
             *v = match &self.coarse_weight {
-                None => idx.iter().map(|&i| cc_max[i as usize]).sum(),
+                None => sum_gather(cc_max, idx),
                 Some(w) => idx
                     .iter()
                     .zip(&w[c * p..(c + 1) * p])
@@ -270,18 +313,21 @@ impl SearchTables {
     /// `exclusion`, or `None` when every point is excluded.
     pub fn search_hierarchical(
         &mut self,
-        cc: &[f32],
+        lin: &[[f32; 2]],
         cc_max: &[f32],
         max_cells: usize,
         exclusion: &Exclusion<'_>,
     ) -> Option<(usize, f32)> {
+        self.new_generation();
         self.coarse_values(cc_max);
         for (c, open) in self.cell_open.iter_mut().enumerate() {
-            // Cells entirely inside an exclusion zone are never opened.
-            *open = exclusion
-                .found
-                .iter()
-                .any(|f| f.angle(&self.coarse_dirs[c]) + self.cell_radius[c] < exclusion.sep_rad);
+            // Cells entirely inside an exclusion zone are never opened:
+            // angle(found, centre) + radius < sep.
+            let slack = exclusion.sep_rad - self.cell_radius[c];
+            *open = !exclusion.found.is_empty() && slack > 0.0 && {
+                let cos_slack = slack.cos();
+                exclusion.found.iter().any(|f| f.dot(&self.coarse_dirs[c]) > cos_slack)
+            };
         }
         let mut best: Option<(usize, f32)> = None;
         for _ in 0..max_cells.max(1) {
@@ -296,27 +342,64 @@ impl SearchTables {
                 break;
             }
             self.cell_open[c] = true;
+            self.counters[1] += 1;
             for f in self.cell_offsets[c] as usize..self.cell_offsets[c + 1] as usize {
                 if exclusion.excludes(&self.fine_dirs[f]) {
                     continue;
                 }
-                let v = self.fine_value(cc, f);
+                let v = self.cached(lin, f);
                 if best.is_none_or(|(_, bv)| v > bv) {
                     best = Some((f, v));
                 }
             }
         }
-        best.map(|b| self.hill_climb(cc, b, exclusion))
+        best.map(|b| self.hill_climb(lin, b, exclusion))
+    }
+
+    /// Sub-grid estimate of the peak at fine point `f`: a quadratic fitted
+    /// to the responses of `f` and its mesh neighbours (gnomonic tangent
+    /// coordinates). Falls back to the grid point when the fit is not a
+    /// maximum within one grid spacing.
+    pub fn quadratic_peak(&mut self, lin: &[[f32; 2]], f: usize) -> Vector3<f64> {
+        let d0 = self.fine_dirs[f];
+        let (e1, e2) = super::refine::tangent_basis(&d0);
+        let mut ata = nalgebra::Matrix6::<f64>::zeros();
+        let mut atb = nalgebra::Vector6::<f64>::zeros();
+        let (a, b) = (self.fine_nb_offsets[f] as usize, self.fine_nb_offsets[f + 1] as usize);
+        let mut spacing = 0.0f64;
+        for k in a..=b {
+            let q = if k == b { f } else { self.fine_nb[k] as usize };
+            let d = self.fine_dirs[q];
+            let z = d0.dot(&d);
+            let (x, y) = (e1.dot(&d) / z, e2.dot(&d) / z);
+            spacing = spacing.max((x * x + y * y).sqrt());
+            let row = nalgebra::Vector6::new(1.0, x, y, 0.5 * x * x, x * y, 0.5 * y * y);
+            let v = self.cached(lin, q) as f64;
+            ata += row * row.transpose();
+            atb += row * v;
+        }
+        let Some(c) = ata.try_inverse().map(|inv| inv * atb) else { return d0 };
+        let (g, h) = (nalgebra::Vector2::new(c[1], c[2]), nalgebra::Matrix2::new(c[3], c[4], c[4], c[5]));
+        if !(h[(0, 0)] < 0.0 && h.determinant() > 0.0) {
+            return d0;
+        }
+        let Some(x) = h.try_inverse().map(|hi| -(hi * g)) else { return d0 };
+        if x.norm() > spacing {
+            return d0;
+        }
+        (d0 + e1 * x.x + e2 * x.y).normalize()
     }
 
     /// Exhaustive search over every fine point (the classic SRP-PHAT scan).
-    pub fn search_exhaustive(&self, cc: &[f32], exclusion: &Exclusion<'_>) -> Option<(usize, f32)> {
+    pub fn search_exhaustive(&mut self, lin: &[[f32; 2]], exclusion: &Exclusion<'_>) -> Option<(usize, f32)> {
+        self.new_generation();
+        self.counters[2] += self.fine_dirs.len();
         let mut best: Option<(usize, f32)> = None;
         for f in 0..self.fine_dirs.len() {
             if exclusion.excludes(&self.fine_dirs[f]) {
                 continue;
             }
-            let v = self.fine_value(cc, f);
+            let v = self.fine_value(lin, f);
             if best.is_none_or(|(_, bv)| v > bv) {
                 best = Some((f, v));
             }
@@ -325,17 +408,22 @@ impl SearchTables {
     }
 
     /// Moves to the best neighbour until none is better (a local maximum of the fine mesh).
-    fn hill_climb(&self, cc: &[f32], start: (usize, f32), exclusion: &Exclusion<'_>) -> (usize, f32) {
+    fn hill_climb(
+        &mut self,
+        lin: &[[f32; 2]],
+        start: (usize, f32),
+        exclusion: &Exclusion<'_>,
+    ) -> (usize, f32) {
         let mut cur = start;
         for _ in 0..64 {
             let mut moved = false;
             let (a, b) = (self.fine_nb_offsets[cur.0] as usize, self.fine_nb_offsets[cur.0 + 1] as usize);
-            for &n in &self.fine_nb[a..b] {
-                let n = n as usize;
+            for q in a..b {
+                let n = self.fine_nb[q] as usize;
                 if exclusion.excludes(&self.fine_dirs[n]) {
                     continue;
                 }
-                let v = self.fine_value(cc, n);
+                let v = self.cached(lin, n);
                 if v > cur.1 {
                     cur = (n, v);
                     moved = true;
@@ -347,4 +435,21 @@ impl SearchTables {
         }
         cur
     }
+}
+
+/// `Σ v[idx[q]]` with independent accumulators.
+#[inline]
+fn sum_gather(v: &[f32], idx: &[u32]) -> f32 {
+    let mut acc = [0f32; 8];
+    let chunks = idx.chunks_exact(8);
+    let rest = chunks.remainder();
+    for i8 in chunks {
+        for l in 0..8 {
+            acc[l] += v[i8[l] as usize];
+        }
+    }
+    for &i in rest {
+        acc[0] += v[i as usize];
+    }
+    acc.iter().sum()
 }
