@@ -5,7 +5,7 @@
 //!   sensor and diffuse noise, moving sources and arrays.
 //! - [`kinematics`]: differential-drive robots, waypoint trajectories, a navigator.
 //! - [`slam_noise`]: the pose error a SLAM system adds (noise and slow drift).
-//! - [`error`]: [`SimError`].
+//! - [`error`]: the crate's error enum, [`SimError`].
 
 pub mod acoustics;
 pub mod error;

@@ -38,7 +38,7 @@ impl FractionalDelay {
             half_width: w,
             cos_table: (0..2 * w).map(|j| (step * j as f64).cos()).collect(),
             sin_table: (0..2 * w).map(|j| (step * j as f64).sin()).collect(),
-            sign_table: (0..2 * w).map(|j| if (j + w) % 2 == 0 { 1.0 } else { -1.0 }).collect(),
+            sign_table: (0..2 * w).map(|j| if (j + w).is_multiple_of(2) { 1.0 } else { -1.0 }).collect(),
             base: (cb, sb),
         }
     }

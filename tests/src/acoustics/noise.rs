@@ -102,7 +102,7 @@ impl DiffuseNoise {
         seed: u64,
     ) -> Result<Self, SimError> {
         let n = config.loop_len;
-        if n < 4 || n % 2 != 0 {
+        if n < 4 || !n.is_multiple_of(2) {
             return Err(SimError::invalid(
                 "diffuse_noise.loop_len",
                 format!("must be even and ≥ 4, got {n}"),

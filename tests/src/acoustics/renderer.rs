@@ -30,7 +30,7 @@ use super::convolution::{SpectrumHistory, Upols, accumulate};
 use super::image_source::ImageSource;
 use super::mix_seed;
 use super::noise::{DiffuseNoise, DiffuseNoiseConfig, SensorNoise};
-use super::rir::RirModel;
+use super::rir::{Biquad, RirModel};
 use super::scene::Scene;
 use super::signals::SignalGenerator;
 use crate::error::SimError;
@@ -91,6 +91,8 @@ pub struct RenderStats {
 #[derive(Clone, Debug)]
 struct SourceState {
     generator: SignalGenerator,
+    /// The responses' high-pass, applied to the signal (see [`RirModel::high_pass`]).
+    high_pass: Option<Biquad>,
     history: SpectrumHistory,
     images: Vec<ImageSource>,
     images_for: Option<Point3<f64>>,
@@ -165,6 +167,7 @@ impl ArrayRenderer {
             .map(|s| {
                 Ok(SourceState {
                     generator: SignalGenerator::new(s, fs)?,
+                    high_pass: model.high_pass(),
                     history: SpectrumHistory::new(&engine, partitions),
                     images: Vec::new(),
                     images_for: None,
@@ -291,6 +294,9 @@ impl ArrayRenderer {
         let tol = self.config.position_tolerance_m;
         for (src, pos) in self.sources.iter_mut().zip(sources_in_map) {
             src.generator.fill(first, &mut self.src_block);
+            if let Some(hp) = &mut src.high_pass {
+                hp.process_f32(&mut self.src_block);
+            }
             src.history.push(&mut self.engine, &self.src_block);
             if src.images_for.is_none_or(|p| (p - pos).norm() > tol) {
                 self.model.image_sources_into(pos, &mut src.images);
@@ -311,8 +317,10 @@ impl ArrayRenderer {
                 if stale {
                     let had = pair.built_for.is_some();
                     std::mem::swap(&mut pair.early, &mut pair.early_prev);
-                    self.ir.copy_from_slice(&pair.tail_head);
-                    self.model.add_images(&src.images, mic, &mut self.ir);
+                    self.model.early_response(&src.images, mic, &mut self.ir);
+                    for (v, t) in self.ir.iter_mut().zip(&pair.tail_head) {
+                        *v += t;
+                    }
                     self.engine.filter_spectra(&self.ir, &mut pair.early);
                     pair.built_for = Some((src.generation, *mic));
                     self.stats.response_builds += 1;

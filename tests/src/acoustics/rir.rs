@@ -3,16 +3,24 @@
 //! **Design.** An impulse response from a source to a microphone is the sum of
 //!
 //! 1. *early reflections*: every image source (see [`super::image_source`]) of
-//!    order ≤ `max_order` whose path is shorter than `c·image_cutoff_s`, each a
+//!    order ≤ `max_order` whose path is shorter than `c·t_c`, each a
 //!    Hann-windowed-sinc impulse ([`FractionalDelay`]) of gain `β-product / r`
-//!    (r in m: a unit source gives pressure 1 at 1 m) at delay `r/c`;
-//! 2. *late reverberation*: Gaussian noise from `image_cutoff_s` to `length_s`
-//!    whose energy envelope decays by 60 dB per room RT60 (Eyring,
+//!    (r in m: a unit source gives pressure 1 at 1 m) at delay `r/c`, the sum
+//!    high-passed (below);
+//! 2. *late reverberation*: Gaussian noise from `t_c` to `length_s` whose
+//!    energy envelope decays by 60 dB per room RT60 (Eyring,
 //!    [`ShoeboxRoom::rt60_eyring_s`]), independent for every microphone (and
-//!    source), started at the energy the image series itself carries at the
-//!    cutoff. Over `tail_fade_s` before the cutoff the images fade out
-//!    (cos ramp) while the tail fades in (sin ramp), so the summed energy stays
-//!    continuous.
+//!    source), started at the energy the image series itself carries at `t_c`.
+//!    Over `tail_fade_s` before `t_c` the images fade out (cos ramp) while the
+//!    tail fades in (sin ramp), so the summed energy stays continuous.
+//!
+//! The cutoff `t_c` ([`RirModel::image_cutoff_s`]) is `image_cutoff_s` (80 ms by
+//! default, past the mixing time ≈ √V ms of rooms up to 6000 m³) or earlier,
+//! where the image series' expected energy has drifted `image_excess_db` above
+//! the Eyring decay: with uniform absorption a flat room's image series keeps
+//! its grazing paths and decays ever more slowly (a pure image model of the
+//! paper's room at RT60 0.3 s measures T30 ≈ 0.45 s), whereas real rooms
+//! scatter. In the paper's room at RT60 0.6 s, `t_c` ≈ 75 ms.
 //!
 //! The tail's starting level is the image series' *expected* energy rate at
 //! time `t`: images fill space with density `1/V`, so a shell of radius `r = ct`
@@ -22,6 +30,17 @@
 //! so the average is taken over directions ([`RirModel::image_energy_per_second`],
 //! a 4096-point Fibonacci sphere). This level does not depend on positions,
 //! which is what makes the tail cacheable per microphone.
+//!
+//! **High-pass.** Reflection coefficients are positive, so the image pulses
+//! pile up into a slowly varying positive offset: with `λ` images per sample the
+//! response's mean is `λ·E[g]` and its energy `λ·E[g²] + (λ·E[g])²`, several dB
+//! above the incoherent sum late in small rooms. That offset lives below
+//! ~20 Hz and is not sound; like Allen & Berkley, the image part is high-passed
+//! (2nd-order Butterworth, 50 Hz by default; its phase shift, the same on every
+//! microphone, leaves time differences exact). The filter is applied to the
+//! whole response ([`RirModel::impulse_response`]); it barely touches the
+//! white tail. The renderer applies it to the source signals instead: the same
+//! result by linearity, once per source rather than per response.
 //!
 //! Why a hybrid: the image count grows as `t³` (≈ 190 images below 80 ms in
 //! the paper's 450 m³ room, ≈ 80 000 below 0.6 s), and beyond the mixing
@@ -36,6 +55,7 @@ use rand_distr::StandardNormal;
 
 use super::fractional_delay::FractionalDelay;
 use super::image_source::{ImageSource, image_sources_into};
+use super::noise::fibonacci_sphere;
 use super::room::ShoeboxRoom;
 use crate::error::SimError;
 
@@ -51,6 +71,11 @@ pub struct RirConfig {
     /// Image sources arriving later than this (s after emission) are replaced by
     /// the stochastic tail. Ignored (images fill the whole length) without tail.
     pub image_cutoff_s: f64,
+    /// The image part also stops where its expected energy has risen this far
+    /// (dB) above the Eyring decay, but not before 20 ms (or `2·tail_fade_s`):
+    /// a specular shoebox with uniform absorption decays too slowly once its
+    /// grazing paths dominate, while a real room scatters. `INFINITY` disables.
+    pub image_excess_db: f64,
     /// Whether to add the stochastic late tail.
     pub tail: bool,
     /// Length of the image-to-tail crossfade ending at the cutoff (s).
@@ -59,20 +84,26 @@ pub struct RirConfig {
     pub fractional_delay_half_width: usize,
     /// Distances below this are clamped in the 1/r law (m).
     pub min_distance_m: f64,
+    /// Corner of the second-order Butterworth high-pass applied to the image
+    /// part (Hz); 0 disables it. See the module notes on the DC offset.
+    pub high_pass_hz: f64,
 }
 
 impl Default for RirConfig {
-    /// 16 kHz, 0.6 s (the paper's RT60), images up to 80 ms with any order, tail on.
+    /// 16 kHz, 0.6 s (the paper's RT60), images up to 80 ms with any order, tail
+    /// on, 50 Hz high-pass.
     fn default() -> Self {
         RirConfig {
             sample_rate_hz: 16_000.0,
             length_s: 0.6,
             max_order: 1000,
             image_cutoff_s: 0.08,
+            image_excess_db: 1.0,
             tail: true,
             tail_fade_s: 0.01,
             fractional_delay_half_width: 16,
             min_distance_m: 0.05,
+            high_pass_hz: 50.0,
         }
     }
 }
@@ -92,6 +123,10 @@ pub struct RirModel {
     tail_std_at_cutoff: f64,
     /// Tail amplitude factor per sample.
     tail_decay_per_sample: f64,
+    /// High-pass coefficients (None when disabled).
+    high_pass: Option<Biquad>,
+    /// Per direction of a Fibonacci sphere, ln(energy factor) per metre of path.
+    direction_rates: Vec<f64>,
 }
 
 impl RirModel {
@@ -124,6 +159,12 @@ impl RirModel {
                 format!("must be in [0, image_cutoff_s], got {}", c.tail_fade_s),
             ));
         }
+        if !(c.high_pass_hz.is_finite() && c.high_pass_hz >= 0.0 && c.high_pass_hz < c.sample_rate_hz / 2.0) {
+            return Err(SimError::invalid(
+                "rir.high_pass_hz",
+                format!("must be in [0, fs/2), got {}", c.high_pass_hz),
+            ));
+        }
         if !(c.min_distance_m.is_finite() && c.min_distance_m > 0.0) {
             return Err(SimError::invalid(
                 "rir.min_distance_m",
@@ -132,18 +173,32 @@ impl RirModel {
         }
         let fs = c.sample_rate_hz;
         let len = (c.length_s * fs).round() as usize;
-        let cutoff_s =
-            if c.tail { c.image_cutoff_s } else { c.length_s + c.fractional_delay_half_width as f64 / fs };
+        if !(c.image_excess_db > 0.0) {
+            return Err(SimError::invalid(
+                "rir.image_excess_db",
+                format!("must be > 0, got {}", c.image_excess_db),
+            ));
+        }
         let mut model = RirModel {
             room: room.clone(),
             config: config.clone(),
             fd: FractionalDelay::new(c.fractional_delay_half_width),
             len,
-            cutoff_samples: cutoff_s * fs,
+            cutoff_samples: 0.0,
             fade_samples: if c.tail { c.tail_fade_s * fs } else { 0.0 },
             tail_std_at_cutoff: 0.0,
             tail_decay_per_sample: 1.0,
+            high_pass: (c.high_pass_hz > 0.0).then(|| Biquad::butterworth_high_pass(c.high_pass_hz / fs)),
+            direction_rates: direction_rates(room),
         };
+        let cutoff_s = if c.tail {
+            model
+                .excess_time_s()
+                .clamp(c.image_cutoff_s.min((2.0 * c.tail_fade_s).max(0.02)), c.image_cutoff_s)
+        } else {
+            c.length_s + c.fractional_delay_half_width as f64 / fs
+        };
+        model.cutoff_samples = cutoff_s * fs;
         if c.tail {
             model.tail_std_at_cutoff = (model.image_energy_per_second(cutoff_s) / fs).sqrt();
             // Amplitude falls 60 dB (×10⁻³) in one RT60.
@@ -193,23 +248,36 @@ impl RirModel {
     pub fn image_energy_per_second(&self, t_s: f64) -> f64 {
         let c = self.room.speed_of_sound_m_per_s();
         let r = c * t_s;
-        let beta = self.room.reflection_coefficients();
-        let size = self.room.size_m();
-        // ln of the energy factor per metre of path along each axis: bounces r|u_a|/L_a,
-        // alternating between the two walls, each costing β_lo·β_hi per two bounces (energy).
-        let k: Vector3<f64> =
-            Vector3::from_fn(|a, _| (beta[2 * a] * beta[2 * a + 1]).max(1e-300).ln() / size[a]);
-        let n = 4096;
-        let golden = std::f64::consts::PI * (3.0 - 5f64.sqrt());
-        let mut sum = 0.0;
-        for i in 0..n {
-            let z = 1.0 - (2.0 * i as f64 + 1.0) / n as f64;
-            let rho = (1.0 - z * z).sqrt();
-            let (s, co) = (golden * i as f64).sin_cos();
-            let u = Vector3::new(rho * co, rho * s, z);
-            sum += (r * (k.x * u.x.abs() + k.y * u.y.abs() + k.z * u.z.abs())).exp();
-        }
-        4.0 * std::f64::consts::PI * c / self.room.volume_m3() * sum / n as f64
+        let mean = self.direction_rates.iter().map(|k| (r * k).exp()).sum::<f64>()
+            / self.direction_rates.len() as f64;
+        4.0 * std::f64::consts::PI * c / self.room.volume_m3() * mean
+    }
+
+    /// The high-pass every response gets, at rest (None when disabled). It is
+    /// linear and time-invariant, so a renderer may apply it to the source
+    /// signals instead of to every response.
+    pub fn high_pass(&self) -> Option<Biquad> {
+        self.high_pass
+    }
+
+    /// Time after emission where the images end and the tail takes over (s).
+    pub fn image_cutoff_s(&self) -> f64 {
+        self.cutoff_samples / self.config.sample_rate_hz
+    }
+
+    /// First time (1 ms steps, up to `image_cutoff_s`) at which the expected image
+    /// energy exceeds the Eyring decay by `image_excess_db`.
+    fn excess_time_s(&self) -> f64 {
+        let e0 = self.image_energy_per_second(0.0);
+        let rt60 = self.room.rt60_eyring_s();
+        let steps = (self.config.image_cutoff_s * 1000.0).ceil() as usize;
+        (1..=steps)
+            .map(|i| i as f64 * 1e-3)
+            .find(|t| {
+                10.0 * (self.image_energy_per_second(*t) / e0).log10() + 60.0 * t / rt60
+                    > self.config.image_excess_db
+            })
+            .unwrap_or(self.config.image_cutoff_s)
     }
 
     /// The image sources of `source_in_map` that can arrive before the cutoff
@@ -220,9 +288,13 @@ impl RirModel {
         image_sources_into(&self.room, source_in_map, self.config.max_order, max_distance, out);
     }
 
-    /// Adds the early part (images) for a microphone at `mic_in_map` to `out`
-    /// (sample 0 = emission time; samples past `out.len()` are dropped).
-    pub fn add_images(&self, images: &[ImageSource], mic_in_map: &Point3<f64>, out: &mut [f64]) {
+    /// Writes the early part (images, before the high-pass) for a microphone at
+    /// `mic_in_map` into `out[..early_len()]` (sample 0 = emission time) and
+    /// zeroes the rest of `out`.
+    pub fn early_response(&self, images: &[ImageSource], mic_in_map: &Point3<f64>, out: &mut [f64]) {
+        out.fill(0.0);
+        let n = self.early_len().min(out.len());
+        let early = &mut out[..n];
         let per_metre = self.config.sample_rate_hz / self.room.speed_of_sound_m_per_s();
         let fade_start = self.cutoff_samples - self.fade_samples;
         for img in images {
@@ -235,7 +307,7 @@ impl RirModel {
             if delay > fade_start {
                 gain *= (std::f64::consts::FRAC_PI_2 * (delay - fade_start) / self.fade_samples).cos();
             }
-            self.fd.add(out, delay, gain);
+            self.fd.add(early, delay, gain);
         }
     }
 
@@ -271,9 +343,69 @@ impl RirModel {
         let mut images = Vec::new();
         self.image_sources_into(source_in_map, &mut images);
         let mut h = vec![0.0; self.len];
-        self.add_images(&images, mic_in_map, &mut h);
+        self.early_response(&images, mic_in_map, &mut h);
         self.add_tail(tail_seed, &mut h);
+        if let Some(mut hp) = self.high_pass() {
+            hp.process(&mut h);
+        }
         h
+    }
+}
+
+/// Along a direction `u` a path of length `r` meets the two walls across axis
+/// `a` about `r·|u_a|/L_a` times, alternately, so its energy factor is
+/// `exp(r·Σ_a |u_a|·ln(β_lo·β_hi)/L_a)`. Returns the exponent per metre for
+/// 4096 directions of a Fibonacci sphere.
+fn direction_rates(room: &ShoeboxRoom) -> Vec<f64> {
+    let beta = room.reflection_coefficients();
+    let size = room.size_m();
+    let k: Vector3<f64> = Vector3::from_fn(|a, _| (beta[2 * a] * beta[2 * a + 1]).max(1e-300).ln() / size[a]);
+    fibonacci_sphere(4096).iter().map(|u| k.x * u.x.abs() + k.y * u.y.abs() + k.z * u.z.abs()).collect()
+}
+
+/// A biquad filter with its state (direct form I).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Biquad {
+    b: [f64; 3],
+    a: [f64; 2],
+    x: [f64; 2],
+    y: [f64; 2],
+}
+
+impl Biquad {
+    /// Second-order Butterworth high-pass at `fc` cycles per sample (bilinear
+    /// transform with pre-warping), at rest.
+    pub fn butterworth_high_pass(fc: f64) -> Self {
+        let k = (std::f64::consts::PI * fc).tan();
+        let q = std::f64::consts::FRAC_1_SQRT_2;
+        let norm = 1.0 / (1.0 + k / q + k * k);
+        Biquad {
+            b: [norm, -2.0 * norm, norm],
+            a: [2.0 * (k * k - 1.0) * norm, (1.0 - k / q + k * k) * norm],
+            x: [0.0; 2],
+            y: [0.0; 2],
+        }
+    }
+
+    /// Filters one sample.
+    #[inline]
+    pub fn tick(&mut self, v: f64) -> f64 {
+        let y = self.b[0] * v + self.b[1] * self.x[0] + self.b[2] * self.x[1]
+            - self.a[0] * self.y[0]
+            - self.a[1] * self.y[1];
+        self.x = [v, self.x[0]];
+        self.y = [y, self.y[0]];
+        y
+    }
+
+    /// Filters `buf` in place, continuing from the current state.
+    pub fn process(&mut self, buf: &mut [f64]) {
+        buf.iter_mut().for_each(|v| *v = self.tick(*v));
+    }
+
+    /// [`Self::process`] on f32 samples (state kept in f64).
+    pub fn process_f32(&mut self, buf: &mut [f32]) {
+        buf.iter_mut().for_each(|v| *v = self.tick(*v as f64) as f32);
     }
 }
 
