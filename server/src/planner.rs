@@ -11,11 +11,11 @@
 //! 2. [`bearings`]: the target pattern from the Fisher information, matched to
 //!    the robots with the least travel (and sticky across cycles); blocked
 //!    ideal spots are replaced by the nearest free spot in their wedge;
-//! 3. [`hysteresis`]: re-plan only on θ out of band, GDOP high, a worthwhile
+//! 3. `hysteresis`: re-plan only on θ out of band, GDOP high, a worthwhile
 //!    predicted improvement, or goals made invalid / left behind by the source;
-//! 4. [`cycle`] + [`qp`]: this cycle's waypoints from a Clarabel QP/SOCP
+//! 4. `cycle` + `qp`: this cycle's waypoints from a Clarabel QP/SOCP
 //!    (wedges, keep-out chord, range and step cones, convex free region,
-//!    linearised separation), else the [`sampling`] search;
+//!    linearised separation), else the `sampling` search;
 //! 5. every waypoint is checked against the hard constraints (step, range,
 //!    free space with clearance, separation) before it becomes a [`Goal`].
 //!
@@ -149,7 +149,10 @@ impl Planner {
             info_weight_m: cfg.pattern_info_weight_m,
         };
         let ideal = choose_pattern(&src, &pattern_robots, &settings, None);
-        let chosen = if cfg.blocked_spot_penalty_m > 0.0 && !is_unbounded(&cfg.free_space) {
+        // Penalising blocked spots only raises the cost of candidates with one, so
+        // when the pure-geometry optimum has none it is also the obstacle-aware one.
+        let ideal_blocked = ideal.spots.iter().any(|g| !self.free.is_free(g));
+        let chosen = if cfg.blocked_spot_penalty_m > 0.0 && ideal_blocked {
             let s = PatternSettings { blocked_penalty_m: cfg.blocked_spot_penalty_m, ..settings };
             choose_pattern(&src, &pattern_robots, &s, Some(&self.free))
         } else {
@@ -210,6 +213,12 @@ impl Planner {
         let predicted = assess(&after, &src);
         let goals = self.goals(&src, robots, &per_robot, &cycle, &predicted, reason);
         if goals.is_empty() {
+            if situation.busy {
+                // The goals being driven to are still this cycle's plan: confirm them
+                // for the current source so that following starts from here.
+                self.memory.planned_source = Some(src);
+                return PlanOutcome::Hold(HoldReason::GoalsInProgress);
+            }
             self.memory.engaged = None;
             return PlanOutcome::Hold(HoldReason::AtBestFeasible {
                 theta_deg: current.theta_deg,
@@ -464,21 +473,20 @@ impl Planner {
     ) -> Vec<Goal> {
         let (waypoints, seps) = (&cycle.spots, &cycle.separations);
         let tol = self.config.goal_tolerance_m;
-        let mut send: Vec<bool> = robots
+        // Where each robot ends up without a new goal: its active goal, else where it is.
+        let destination: Vec<Point2<f64>> = robots
             .iter()
-            .enumerate()
-            .map(|(i, r)| {
-                let w = waypoints[i];
-                let moves = (w - per_robot[i].p0).norm() > tol;
-                let replaces = r.active_goal.is_some_and(|g| {
-                    (Point2::new(g.translation.vector.x, g.translation.vector.y) - w).norm() > tol
-                });
-                moves || replaces
+            .zip(per_robot)
+            .map(|(r, c)| {
+                r.active_goal.map_or(c.p0, |g| Point2::new(g.translation.vector.x, g.translation.vector.y))
             })
             .collect();
-        // A robot left where it is must still keep its separations from the others' goals.
+        // A goal is sent when the waypoint differs from that destination ...
+        let mut send: Vec<bool> =
+            (0..robots.len()).map(|i| (waypoints[i] - destination[i]).norm() > tol).collect();
+        // ... or when a robot left alone would be too close to another's goal.
         loop {
-            let at = |k: usize, send: &[bool]| if send[k] { waypoints[k] } else { per_robot[k].p0 };
+            let at = |k: usize, send: &[bool]| if send[k] { waypoints[k] } else { destination[k] };
             let short = seps.iter().find(|s| {
                 !(send[s.i] && send[s.j]) && (at(s.i, &send) - at(s.j, &send)).norm() < s.min_m - CHECK_TOL_M
             });
@@ -516,10 +524,6 @@ impl Planner {
         }
         goals
     }
-}
-
-fn is_unbounded(fs: &FreeSpaceConfig) -> bool {
-    fs.room.is_empty() && fs.obstacles.is_empty()
 }
 
 /// Why the input cannot be planned for, if it cannot.

@@ -439,10 +439,18 @@ fn busy_robots_keep_their_goals_and_replanning_is_rate_limited() {
         planner.plan(later, &input(src, busy.clone())),
         PlanOutcome::Hold(HoldReason::GoalsInProgress)
     );
-    // The source walks off by a metre: the goals follow.
-    let moved = Point3::new(-1.0, 0.0, 1.2);
-    let out = planned(planner.plan(later, &input(moved, busy)));
+    // The source walks 2 m sideways: new goals (θ is still out of band, so that is the reason).
+    let moved = Point3::new(0.0, 2.0, 1.2);
+    let out = planned(planner.plan(later, &input(moved, busy.clone())));
     assert!(out.iter().all(|g| g.reason == RepositionReason::ThetaOutOfBand), "{out:?}");
+    for g in &out {
+        let old = goals.iter().find(|o| o.robot == g.robot).unwrap();
+        assert!(
+            (xy(&g.map_from_base) - xy(&old.map_from_base)).norm() > 0.1,
+            "goal of robot {} kept",
+            g.robot
+        );
+    }
 }
 
 #[test]
