@@ -58,11 +58,7 @@ async fn main() -> anyhow::Result<()> {
         .with_context(|| format!("cannot listen on {}", config.listen))?;
     let running = service::start(config, Arc::new(SystemClock), listener).await?;
     tracing::info!("soundmap-coordinator {} listening on {}", env!("CARGO_PKG_VERSION"), running.local_addr);
-    tokio::select! {
-        r = shutdown_signal() => r?,
-        // The server only ends by itself on an error, which `wait` returns.
-        _ = std::future::pending::<()>() => {}
-    }
+    shutdown_signal().await?;
     tracing::info!("shutting down");
     running.shutdown().await?;
     Ok(())

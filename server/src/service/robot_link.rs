@@ -94,8 +94,15 @@ impl RobotLink for RobotLinkService {
                     _ = stop.wait_for(|s| *s) => None,
                 };
                 match next {
-                    Some(m) => m.map(|m| (Ok(m), (rx, Some(stop)))),
-                    None => Some((Err(to_status(&ServerError::ShuttingDown)), (rx, None))),
+                    Some(Some(m)) => Some((Ok(m), (rx, Some(stop)))),
+                    // The coordinator dropped this stream: a newer connection took the robot over.
+                    Some(None) if !*stop.borrow() => Some((
+                        Err(Status::aborted(
+                            "this stream was replaced by a newer connection of the same robot",
+                        )),
+                        (rx, None),
+                    )),
+                    _ => Some((Err(to_status(&ServerError::ShuttingDown)), (rx, None))),
                 }
             });
         Ok(Response::new(Box::pin(stream)))

@@ -1,6 +1,6 @@
 //! The one place where domain errors become gRPC statuses and in-band stream errors.
 
-use soundmap_proto::{Problem, wire};
+use soundmap_proto::wire;
 use tonic::{Code, Status};
 
 use crate::error::ServerError;
@@ -8,10 +8,7 @@ use crate::error::ServerError;
 /// The gRPC code of an error.
 pub fn code(e: &ServerError) -> Code {
     match e {
-        ServerError::Invalid(v) => match v.problem {
-            Problem::InFuture { .. } => Code::OutOfRange,
-            _ => Code::InvalidArgument,
-        },
+        ServerError::Invalid(_) => Code::InvalidArgument,
         ServerError::NoHello(_) | ServerError::SecondHello(_) => Code::FailedPrecondition,
         ServerError::UnknownCommand { .. } => Code::NotFound,
         ServerError::AlreadyConnected(_) => Code::AlreadyExists,

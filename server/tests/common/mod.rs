@@ -39,24 +39,24 @@ pub fn array() -> ArrayInfo {
     }
 }
 
+/// A hello with `id` as given (not validated here: tests send bad ids too).
 pub fn hello(id: &str) -> wire::RobotMessage {
-    Hello { robot_id: RobotId::parse(id, "id").unwrap(), array: array(), software_version: "test".into() }
-        .to_wire()
-        .pipe(|h| wire::RobotMessage { msg: Some(Up::Hello(h)) })
-}
-
-trait Pipe: Sized {
-    fn pipe<T>(self, f: impl FnOnce(Self) -> T) -> T {
-        f(self)
+    let mut h = Hello {
+        robot_id: RobotId::parse("x", "id").unwrap(),
+        array: array(),
+        software_version: "test".into(),
     }
+    .to_wire();
+    h.robot_id = id.into();
+    wire::RobotMessage { msg: Some(Up::Hello(h)) }
 }
-impl<T> Pipe for T {}
 
 /// One robot's stream.
 pub struct Robot {
     pub tx: mpsc::Sender<wire::RobotMessage>,
     pub rx: Streaming<wire::CoordinatorMessage>,
     pub seq: u64,
+    pub welcome: wire::Welcome,
 }
 
 /// A gRPC channel to `addr`. (The generated clients have no `connect`
@@ -88,9 +88,12 @@ pub async fn open(
         request.metadata_mut().insert("authorization", format!("Bearer {t}").parse().unwrap());
     }
     let response = channel(addr).await.connect(request).await?;
-    let mut robot = Robot { tx, rx: response.into_inner(), seq: 0 };
+    let mut robot = Robot { tx, rx: response.into_inner(), seq: 0, welcome: wire::Welcome::default() };
     match robot.next().await? {
-        Down::Welcome(_) => Ok(robot),
+        Down::Welcome(w) => {
+            robot.welcome = w;
+            Ok(robot)
+        }
         other => panic!("expected a welcome, got {other:?}"),
     }
 }
