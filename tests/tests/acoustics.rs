@@ -244,6 +244,56 @@ fn moving_source_output_is_continuous_across_blocks() {
 }
 
 #[test]
+fn rotating_array_output_is_continuous_and_settles_to_the_static_output() {
+    let band = SourceSignal {
+        waveform: Waveform::BandNoise { low_hz: 100.0, high_hz: 400.0 },
+        ..SourceSignal::white_noise(1.0, 21)
+    };
+    let scene = Scene {
+        room: paper_room(0.4),
+        sources: vec![band],
+        rir: RirConfig { length_s: 0.4, ..RirConfig::default() },
+    };
+    let src = [Point3::new(6.0, 7.0, 1.12)];
+    let centre = Point3::new(3.0, 3.0, 0.48);
+    let ring = |yaw: f64| -> Vec<Point3<f64>> {
+        (0..4)
+            .map(|i| {
+                let a = yaw + i as f64 * std::f64::consts::FRAC_PI_2;
+                centre + Vector3::new(0.175 * a.cos(), 0.175 * a.sin(), 0.0)
+            })
+            .collect()
+    };
+    let b = 256;
+    let blocks = 150;
+    let settle = 100; // the array turns at 1 rad/s until this block, then stops
+    let yaw_at = |k: usize| ((k.min(settle - 1) + 1) * b) as f64 / FS;
+    let mut moving = scene.renderer(ArrayConfig { block_len: b, ..ArrayConfig::new(4, 6) }).unwrap();
+    let mut fixed = scene.renderer(ArrayConfig { block_len: b, ..ArrayConfig::new(4, 6) }).unwrap();
+    let (mut out_m, mut out_f) = (vec![0.0f32; 4 * b], vec![0.0f32; 4 * b]);
+    let mut y = vec![Vec::new(); 4];
+    let mut last_diff = 0.0f32;
+    for k in 0..blocks {
+        moving.render_block(&ring(yaw_at(k)), &src, &mut out_m).unwrap();
+        fixed.render_block(&ring(yaw_at(blocks)), &src, &mut out_f).unwrap();
+        for m in 0..4 {
+            y[m].extend_from_slice(&out_m[m * b..(m + 1) * b]);
+        }
+        if k == blocks - 1 {
+            last_diff = out_m.iter().zip(&out_f).fold(0.0f32, |a, (p, q)| a.max((p - q).abs()));
+        }
+    }
+    for (m, ym) in y.iter().enumerate() {
+        let (at, inside) = boundary_vs_interior(&ym[..settle * b], b, (0.5 * FS) as usize);
+        assert!(at <= 1.2 * inside, "mic {m}: |Δ²y| {at:.3e} at boundaries vs {inside:.3e} inside");
+    }
+    // Once stopped for longer than the response, the output is the static one.
+    let level = rms(&out_f);
+    assert!(last_diff < 1e-4 * level as f32, "after stopping: {last_diff} (level {level})");
+    assert_eq!(moving.stats().response_builds, 4 * settle as u64);
+}
+
+#[test]
 fn sensor_and_diffuse_noise_have_the_snr_asked_for() {
     let scene =
         Scene { room: paper_room(0.6), sources: vec![SourceSignal::white_noise(1.0, 11)], rir: anechoic() };

@@ -150,7 +150,7 @@ fn navigator_reaches_a_goal_pose_and_reports_progress() {
     let limits = DriveLimits::default();
     let mut robot = DiffDriveRobot::new(Pose2::new(0.0, 0.0, 0.0), limits, DT).unwrap();
     let mut nav = Navigator::new(NavigatorConfig::default());
-    assert_eq!(nav.set_goal(7, &goal(4.0, 3.0, 2.0), None), None);
+    assert_eq!(nav.set_goal(7, &goal(4.0, 3.0, 2.0), None), Ok(None));
     assert_eq!(nav.progress().unwrap().state, CommandState::Executing);
     let log = run_nav(&mut nav, &mut robot, 60.0);
     let (t_end, state, _) = *log.last().unwrap();
@@ -179,9 +179,11 @@ fn a_newer_goal_replaces_the_current_one() {
     let limits = DriveLimits::default();
     let mut robot = DiffDriveRobot::new(Pose2::new(1.0, 1.0, 0.0), limits, DT).unwrap();
     let mut nav = Navigator::new(NavigatorConfig::default());
-    nav.set_goal(1, &goal(6.0, 1.0, 0.0), None);
+    nav.set_goal(1, &goal(6.0, 1.0, 0.0), None).unwrap();
     run_nav(&mut nav, &mut robot, 3.0);
-    let replaced = nav.set_goal(2, &goal(1.0, 4.0, -1.0), None).expect("goal 1 was open");
+    assert!(nav.set_goal(9, &goal(f64::NAN, 4.0, -1.0), None).is_err(), "a non-finite goal is refused");
+    assert_eq!(nav.progress().unwrap().goal_id, 1, "a refused goal leaves the current one");
+    let replaced = nav.set_goal(2, &goal(1.0, 4.0, -1.0), None).unwrap().expect("goal 1 was open");
     assert_eq!((replaced.goal_id, replaced.state), (1, CommandState::Canceled));
     assert!(replaced.distance_remaining_m < 5.0 && replaced.distance_remaining_m > 3.0);
     let log = run_nav(&mut nav, &mut robot, 60.0);
@@ -189,7 +191,7 @@ fn a_newer_goal_replaces_the_current_one() {
     assert_eq!(nav.progress().unwrap().goal_id, 2);
     assert!(robot.pose().distance_to(&Pose2::new(1.0, 4.0, 0.0)) <= 0.1);
     // A goal that cannot be reached before its deadline fails.
-    nav.set_goal(3, &goal(10.0, 10.0, 0.0), Some(robot.time_s() + 2.0));
+    nav.set_goal(3, &goal(10.0, 10.0, 0.0), Some(robot.time_s() + 2.0)).unwrap();
     let until = robot.time_s() + 10.0;
     let log = run_nav(&mut nav, &mut robot, until);
     assert_eq!(log.last().unwrap().1, CommandState::Failed);

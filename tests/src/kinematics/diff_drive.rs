@@ -172,7 +172,8 @@ impl DiffDriveRobot {
         self.time_s
     }
 
-    /// Advances one time step toward `command` within the limits.
+    /// Advances one time step toward `command` within the limits (a command
+    /// component that is not finite counts as 0).
     pub fn step(&mut self, command: Twist) {
         let l = &self.limits;
         let dt = self.time_step_s;

@@ -13,6 +13,7 @@ use soundmap_proto::CommandState;
 
 use super::diff_drive::{DriveLimits, Pose2, Twist, wrap_angle};
 use super::steering::{SteeringConfig, steer_toward, turn_toward};
+use crate::error::SimError;
 
 /// Navigator settings.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -80,15 +81,22 @@ impl Navigator {
 
     /// Accepts goal `goal_id`: reach the planar part of `goal_map_from_base`,
     /// before `deadline_s` (simulated seconds) if given. Returns the progress of
-    /// the goal it replaces, now `Canceled`, if one was open.
+    /// the goal it replaces, now `Canceled`, if one was open. A goal that is not
+    /// finite is refused (the current goal, if any, stays).
     pub fn set_goal(
         &mut self,
         goal_id: u64,
         goal_map_from_base: &Isometry3<f64>,
         deadline_s: Option<f64>,
-    ) -> Option<NavProgress> {
-        let replaced = self.cancel();
+    ) -> Result<Option<NavProgress>, SimError> {
         let pose = Pose2::from_map_from_base(goal_map_from_base);
+        if ![pose.x_m, pose.y_m, pose.yaw_rad].iter().all(|v| v.is_finite()) {
+            return Err(SimError::invalid("goal_map_from_base", "must be finite"));
+        }
+        if deadline_s.is_some_and(|t| t.is_nan()) {
+            return Err(SimError::invalid("deadline_s", "must not be NaN"));
+        }
+        let replaced = self.cancel();
         self.goal = Some(Goal { id: goal_id, pose, deadline_s, aligning: false });
         self.last = Some(NavProgress {
             goal_id,
@@ -96,7 +104,7 @@ impl Navigator {
             distance_remaining_m: f64::NAN,
             yaw_error_rad: f64::NAN,
         });
-        replaced
+        Ok(replaced)
     }
 
     /// Cancels the open goal, if any, and returns its final progress.
