@@ -207,6 +207,7 @@ fn side_by_side_pair_converges_into_the_band_with_the_step_limit() {
             in_band_at = Some(cycle + 1);
         }
     }
+    eprintln!("θ per cycle: {thetas:.1?}");
     let at = in_band_at.unwrap_or_else(|| panic!("never in band: {thetas:?}"));
     assert!(at <= 5, "in band only after {at} cycles: {thetas:?}");
     let last = *thetas.last().unwrap();
