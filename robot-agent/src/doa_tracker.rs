@@ -7,10 +7,11 @@
 //! levels): they look at what separates a source from noise under PHAT,
 //! whatever the level:
 //! - *coherence*: a potential's `energy` is its PHAT coherence (1 for a
-//!   noise-free plane wave, ≈ 0 for incoherent noise); a birth needs at least
-//!   [`TrackerConfig::birth_min_coherence`], raised to the array's
-//!   diffuse-noise floor plus a margin (diffuse noise is coherent between
-//!   close microphones and peaks, e.g., at the zenith of a planar array);
+//!   noise-free plane wave, ≈ 0 for incoherent noise, ≈ 0.4 for a source at
+//!   0 dB SNR); a birth needs at least [`TrackerConfig::birth_min_coherence`],
+//!   raised to what diffuse noise alone gives in that direction plus a margin
+//!   (diffuse noise is coherent between close microphones: a small planar
+//!   array sees it as a source at its zenith, see [`crate::srp::diffuse`]);
 //! - *consistency*: the peak must come back within
 //!   [`TrackerConfig::birth_gate_deg`] of its previous position in
 //!   `birth_min_hits` of `birth_window_frames` consecutive frames. Noise peaks
@@ -21,9 +22,12 @@
 //! associated frames. A track dies after `max_coast_s` without a detection.
 //!
 //! Uncertainty: the measurement variance of each track is learnt from its
-//! innovations (so it follows the SNR and the array), inflated for the
-//! overlap of consecutive frames, and the reported σ is the filter's
-//! per-axis angular standard deviation.
+//! innovations (so it follows the SNR and the array), and the reported σ is
+//! the filter's per-axis angular standard deviation. On free-field data it
+//! is slightly conservative (mean e²/(2σ²) ≈ 0.4–0.9 for static sources,
+//! whose errors the filter's process noise over-allows). It knows nothing of
+//! reverberation: reflections bias DoAs consistently for a static geometry,
+//! which no single-array innovation can reveal.
 
 pub mod sphere_kf;
 
@@ -31,7 +35,17 @@ use nalgebra::{Unit, Vector3};
 
 use crate::error::AgentError;
 use crate::srp::PotentialSource;
+use crate::srp::diffuse::DiffuseMap;
 use sphere_kf::SphereKf;
+
+/// How coherent the localizer's peaks are on noise alone (PHAT coherence).
+#[derive(Clone, Debug, PartialEq)]
+pub struct NoiseModel {
+    /// Expected coherence of diffuse noise, per direction.
+    pub diffuse: DiffuseMap,
+    /// Standard deviation of the coherence of incoherent noise at one direction.
+    pub sigma: f64,
+}
 
 /// Largest accepted [`TrackerConfig::max_tracks`].
 pub const MAX_TRACKS: usize = 64;
@@ -59,6 +73,9 @@ pub struct TrackerConfig {
     pub birth_min_coherence: f64,
     /// Margin above the array's diffuse-noise coherence floor for births.
     pub diffuse_margin: f64,
+    /// Further margin for births, in standard deviations of the coherence of
+    /// noise at one direction (`1/√(2·pairs·bins)`, large for few microphones).
+    pub noise_sigmas: f64,
     /// Frames over which a birth candidate collects its hits.
     pub birth_window_frames: u32,
     /// Hits a candidate needs within its window to become a track.
@@ -83,8 +100,10 @@ pub struct TrackerConfig {
     pub min_measurement_sigma_deg: f64,
     /// Floor of the reported σ, degrees.
     pub min_sigma_deg: f64,
-    /// Variance inflation for correlated (overlapping) frames; `None`: frame/hop ratio.
-    pub overlap_inflation: Option<f64>,
+    /// Variance inflation of each measurement for the correlation between
+    /// overlapping frames (1 = none: with 50 % overlap the reported σ is
+    /// already slightly conservative, see the tracking tests).
+    pub overlap_inflation: f64,
     /// Time constant of the activity, seconds.
     pub activity_time_constant_s: f64,
     /// A track without detection for this long dies, seconds.
@@ -100,6 +119,7 @@ impl Default for TrackerConfig {
         TrackerConfig {
             birth_min_coherence: 0.15,
             diffuse_margin: 0.1,
+            noise_sigmas: 4.0,
             birth_window_frames: 10,
             birth_min_hits: 7,
             birth_gate_deg: 6.0,
@@ -108,11 +128,11 @@ impl Default for TrackerConfig {
             update_min_coherence: 0.08,
             gate_chi2: 13.8,
             min_gate_deg: 3.0,
-            acceleration_noise: 0.25,
+            acceleration_noise: 0.05,
             measurement_sigma_deg: 2.0,
             min_measurement_sigma_deg: 0.02,
             min_sigma_deg: 0.02,
-            overlap_inflation: None,
+            overlap_inflation: 1.0,
             activity_time_constant_s: 0.15,
             max_coast_s: 0.6,
             merge_deg: 5.0,
@@ -147,7 +167,9 @@ struct Candidate {
 pub struct DoaTracker {
     config: TrackerConfig,
     dt: f64,
-    birth_threshold: f64,
+    /// Coherence above the diffuse-noise response a birth needs.
+    birth_margin: f64,
+    noise: NoiseModel,
     inflation: f64,
     next_id: u64,
     frame: u64,
@@ -160,15 +182,15 @@ pub struct DoaTracker {
 }
 
 impl DoaTracker {
-    /// A tracker fed once per hop of `hop_s` seconds, for frames `overlap`
-    /// times longer than the hop, with potentials of at most `max_potentials`
-    /// per frame, and the array's diffuse-noise coherence floor.
+    /// A tracker fed once per hop of `hop_s` seconds with at most
+    /// `max_potentials` potentials per frame. `noise` describes the
+    /// localizer's coherence under noise alone (see
+    /// [`crate::srp::Srp::noise_model`]).
     pub fn new(
         config: &TrackerConfig,
         hop_s: f64,
-        overlap: f64,
         max_potentials: usize,
-        diffuse_floor: f64,
+        noise: NoiseModel,
     ) -> Result<Self, AgentError> {
         let bad = |field: &str, message: &str| AgentError::InvalidParameter {
             field: format!("tracker.{field}"),
@@ -206,13 +228,14 @@ impl DoaTracker {
             ("min_sigma_deg", c.min_sigma_deg),
             ("merge_deg", c.merge_deg),
             ("diffuse_margin", c.diffuse_margin),
+            ("noise_sigmas", c.noise_sigmas),
         ];
         for (name, v) in non_negative {
             if !(v >= 0.0 && v.is_finite()) {
                 return Err(bad(name, "must be non-negative and finite"));
             }
         }
-        let inflation = c.overlap_inflation.unwrap_or(overlap.max(1.0));
+        let inflation = c.overlap_inflation;
         if !(inflation >= 1.0 && inflation.is_finite()) {
             return Err(bad("overlap_inflation", "must be >= 1"));
         }
@@ -220,7 +243,8 @@ impl DoaTracker {
         Ok(DoaTracker {
             config: c.clone(),
             dt: hop_s,
-            birth_threshold: c.birth_min_coherence.max(diffuse_floor + c.diffuse_margin),
+            birth_margin: c.diffuse_margin + c.noise_sigmas * noise.sigma,
+            noise,
             inflation,
             next_id: 1,
             frame: 0,
@@ -231,9 +255,10 @@ impl DoaTracker {
         })
     }
 
-    /// The coherence a potential needs to start a track (after the diffuse floor).
-    pub fn birth_threshold(&self) -> f64 {
-        self.birth_threshold
+    /// The coherence a potential in direction `d` needs to start a track:
+    /// `max(birth_min_coherence, diffuse(d) + diffuse_margin + noise_sigmas·σ)`.
+    pub fn birth_threshold(&self, d: &Vector3<f64>) -> f64 {
+        self.config.birth_min_coherence.max(self.noise.diffuse.at(d) + self.birth_margin)
     }
 
     /// Forgets every track and candidate (ids keep increasing).
@@ -332,10 +357,10 @@ impl DoaTracker {
             elapsed < window && c.hits + (window - elapsed) as u32 >= cfg.birth_min_hits
         });
         for (pi, p) in potentials.iter().enumerate() {
-            if self.used.get(pi).copied().unwrap_or(true) || p.energy < self.birth_threshold {
+            let z = p.direction.into_inner();
+            if self.used.get(pi).copied().unwrap_or(true) || p.energy < self.birth_threshold(&z) {
                 continue;
             }
-            let z = p.direction.into_inner();
             // Too close to an existing track: it is that track's (ungated) echo, not a new source.
             if self.tracks.iter().any(|t| t.kf.d.angle(&z) < cfg.merge_deg.to_radians()) {
                 continue;

@@ -89,9 +89,7 @@ impl Pipeline {
         let stft = Stft::new(array.channels(), config.frame_len, config.hop_len, config.window)?;
         let srp = Srp::new(array, fs, config.frame_len, &config.srp)?;
         let hop_s = config.hop_len as f64 / fs as f64;
-        let overlap = config.frame_len as f64 / config.hop_len as f64;
-        let tracker =
-            DoaTracker::new(&config.tracker, hop_s, overlap, config.srp.max_sources, srp.diffuse_floor())?;
+        let tracker = DoaTracker::new(&config.tracker, hop_s, config.srp.max_sources, srp.noise_model())?;
         let offset_samples = config.hop_len as f64 - config.frame_len as f64 / 2.0;
         Ok(Pipeline {
             channels: array.channels(),

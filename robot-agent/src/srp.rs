@@ -153,7 +153,7 @@ pub struct Srp {
     gains: Vec<f32>,
     found: Vec<Vector3<f64>>,
     max_step_rad: f64,
-    diffuse_floor: f64,
+    diffuse: diffuse::DiffuseMap,
 }
 
 impl Srp {
@@ -234,21 +234,9 @@ impl Srp {
         let refiner = Refiner::new(&positions, c, fs, frame_len, lo, band.len());
         let (normal, _) = array.best_fit_plane();
         let fine_spacing = grid::SphereGrid::icosphere(config.fine_level).mean_spacing_rad();
-        let mut probe: Vec<Vector3<f64>> = grid::SphereGrid::icosphere(3)
-            .points()
-            .iter()
-            .filter(|d| region.contains(d, 0.0))
-            .copied()
-            .collect();
-        probe.extend(
-            [region.axis.into_inner(), Vector3::z(), -Vector3::z()]
-                .iter()
-                .filter(|d| region.contains(d, 0.0)),
-        );
         let pair_dist: Vec<f64> =
             pair_mics.iter().map(|&(i, j)| (positions[j] - positions[i]).norm()).collect();
-        let diffuse_floor =
-            diffuse::diffuse_floor(&pair_axes, &pair_dist, &probe, (lo, hi), frame_len, fs, c);
+        let diffuse = diffuse::DiffuseMap::new(&pair_axes, &pair_dist, (lo, hi), frame_len, fs, c);
         Ok(Srp {
             config: config.clone(),
             region,
@@ -261,14 +249,24 @@ impl Srp {
             gains: vec![1.0; m],
             found: Vec::with_capacity(config.max_sources),
             max_step_rad: 0.75 * fine_spacing,
-            diffuse_floor,
+            diffuse,
         })
     }
 
     /// Largest PHAT coherence that diffuse noise alone is expected to give
     /// in the search region (see [`diffuse`]).
     pub fn diffuse_floor(&self) -> f64 {
-        self.diffuse_floor
+        self.diffuse.max_where(|d| self.region.contains(d, 0.0))
+    }
+
+    /// The coherence of peaks on noise alone: the diffuse-noise response per
+    /// direction and the standard deviation `1/√(2·pairs·bins)` of incoherent
+    /// noise's coherence at one direction.
+    pub fn noise_model(&self) -> crate::doa_tracker::NoiseModel {
+        crate::doa_tracker::NoiseModel {
+            diffuse: self.diffuse.clone(),
+            sigma: 1.0 / (2.0 * self.pairs() as f64 * self.cc.band.len() as f64).sqrt(),
+        }
     }
 
     /// The directions searched.

@@ -104,12 +104,12 @@ fn explore() {
         let array = ArrayGeometry::load(name).unwrap();
         let p = Pipeline::new(&array, &config).unwrap();
         println!(
-            "{name}: pairs {} fine {} coarse {} diffuse floor {:.3} birth threshold {:.3}",
+            "{name}: pairs {} fine {} coarse {} diffuse floor {:.3} birth threshold at the zenith {:.3}",
             p.srp().pairs(),
             p.srp().fine_points(),
             p.srp().coarse_cells(),
             p.srp().diffuse_floor(),
-            p.tracker().birth_threshold()
+            p.tracker().birth_threshold(&nalgebra::Vector3::z())
         );
         for snr in [-5.0, 0.0, 10.0, 20.0, 30.0] {
             let (mean, med, p95) = synth::stats(&errors(&array, &config, snr, 20, 5));

@@ -177,7 +177,8 @@ pub fn from_toml_str(text: &str, path: &Path) -> Result<ArrayGeometry, AgentErro
 fn field_of_error(text: &str, e: &toml::de::Error) -> (String, String) {
     let message = e.message().trim().to_string();
     let backticked = message.split('`').nth(1).map(str::to_string);
-    let Some(span) = e.span() else {
+    let Some(span) = e.span().filter(|s| !s.is_empty()) else {
+        // No (or an empty) span: the error is about the document's root table.
         return (backticked.unwrap_or_else(|| "<document>".into()), message);
     };
     let line_no = text[..span.start.min(text.len())].matches('\n').count() + 1;
