@@ -7,8 +7,10 @@
 //! `X_b = FFT([x_{b−1}, x_b])`, and kept in a [`SpectrumHistory`]. The output
 //! block is the last `B` samples of `IFFT(Σ_p X_{b−p}·H_p)`. Per output sample
 //! that is `P` complex multiply-adds and `1/B` of a `2B` inverse FFT, instead of
-//! `P·B` multiply-adds for direct convolution. Spectra are f32 and carry the
-//! `1/(2B)` inverse-FFT scale.
+//! `P·B` multiply-adds for direct convolution. Spectra are f32, carry the
+//! `1/(2B)` inverse-FFT scale, and are stored *split*: a spectrum of `B + 1`
+//! bins is `2(B + 1)` floats, all real parts then all imaginary parts, so that
+//! the complex multiply-add vectorizes without shuffles ([`multiply_add`]).
 
 use std::sync::Arc;
 
@@ -66,12 +68,17 @@ impl Upols {
         len.div_ceil(self.block_len).max(1)
     }
 
-    /// Writes the spectra of the `out.len() / bins()` partitions of `h` (f64 taps,
-    /// missing taps are zero) into `out`, scaled by `1/(2B)`.
-    pub fn filter_spectra(&mut self, h: &[f64], out: &mut [Complex<f32>]) {
-        let (b, bins) = (self.block_len, self.bins());
+    /// Floats per split spectrum, `2(B + 1)`.
+    pub fn split_len(&self) -> usize {
+        2 * self.bins()
+    }
+
+    /// Writes the split spectra of the `out.len() / split_len()` partitions of
+    /// `h` (f64 taps, missing taps are zero) into `out`, scaled by `1/(2B)`.
+    pub fn filter_spectra(&mut self, h: &[f64], out: &mut [f32]) {
+        let b = self.block_len;
         let scale = 1.0 / (2 * b) as f64;
-        for (p, dst) in out.chunks_exact_mut(bins).enumerate() {
+        for (p, dst) in out.chunks_exact_mut(self.split_len()).enumerate() {
             self.time.fill(0.0);
             let lo = (p * b).min(h.len());
             let hi = ((p + 1) * b).min(h.len());
@@ -79,46 +86,56 @@ impl Upols {
                 *t = (v * scale) as f32;
             }
             self.forward
-                .process_with_scratch(&mut self.time, dst, &mut self.scratch_forward)
+                .process_with_scratch(&mut self.time, &mut self.spectrum, &mut self.scratch_forward)
                 .expect("buffer sizes come from the plan");
+            split(&self.spectrum, dst);
         }
     }
 
-    /// Spectrum of `[previous, current]` (each `B` samples) into `out` (`B + 1` bins).
-    pub fn input_spectrum(&mut self, previous: &[f32], current: &[f32], out: &mut [Complex<f32>]) {
+    /// Split spectrum of `[previous, current]` (each `B` samples) into `out`.
+    pub fn input_spectrum(&mut self, previous: &[f32], current: &[f32], out: &mut [f32]) {
         let b = self.block_len;
         self.time[..b].copy_from_slice(previous);
         self.time[b..].copy_from_slice(current);
         self.forward
-            .process_with_scratch(&mut self.time, out, &mut self.scratch_forward)
+            .process_with_scratch(&mut self.time, &mut self.spectrum, &mut self.scratch_forward)
             .expect("buffer sizes come from the plan");
+        split(&self.spectrum, out);
     }
 
-    /// Inverse transform of `acc` (destroyed); writes the last `B` samples (the
-    /// valid overlap-save output) to `out`.
-    pub fn output_block(&mut self, acc: &mut [Complex<f32>], out: &mut [f32]) {
+    /// Inverse transform of the split spectrum `acc`; writes the last `B`
+    /// samples (the valid overlap-save output) to `out`.
+    pub fn output_block(&mut self, acc: &[f32], out: &mut [f32]) {
+        let bins = self.bins();
+        let (re, im) = acc.split_at(bins);
+        for ((c, r), i) in self.spectrum.iter_mut().zip(re).zip(im) {
+            *c = Complex::new(*r, *i);
+        }
         // Real signals have real DC and Nyquist bins; clear rounding residue.
-        acc[0].im = 0.0;
-        let last = acc.len() - 1;
-        acc[last].im = 0.0;
+        self.spectrum[0].im = 0.0;
+        self.spectrum[bins - 1].im = 0.0;
         self.inverse
-            .process_with_scratch(acc, &mut self.time, &mut self.scratch_inverse)
+            .process_with_scratch(&mut self.spectrum, &mut self.time, &mut self.scratch_inverse)
             .expect("buffer sizes come from the plan");
         out.copy_from_slice(&self.time[self.block_len..]);
     }
+}
 
-    /// Scratch spectrum of `B + 1` bins (for callers that need one temporarily).
-    pub fn spectrum_scratch(&mut self) -> &mut [Complex<f32>] {
-        &mut self.spectrum
+/// Interleaved complex → split (real parts, then imaginary parts).
+fn split(c: &[Complex<f32>], out: &mut [f32]) {
+    let (re, im) = out.split_at_mut(c.len());
+    for ((v, r), i) in c.iter().zip(re).zip(im) {
+        *r = v.re;
+        *i = v.im;
     }
 }
 
 /// The last `P` input spectra of one signal (newest first), and its last block.
 #[derive(Clone, Debug)]
 pub struct SpectrumHistory {
-    bins: usize,
+    split_len: usize,
     partitions: usize,
-    data: Vec<Complex<f32>>,
+    data: Vec<f32>,
     /// Slot of the newest spectrum.
     head: usize,
     previous: Vec<f32>,
@@ -128,9 +145,9 @@ impl SpectrumHistory {
     /// An all-silent history for `partitions` partitions.
     pub fn new(engine: &Upols, partitions: usize) -> Self {
         SpectrumHistory {
-            bins: engine.bins(),
+            split_len: engine.split_len(),
             partitions,
-            data: vec![Complex::new(0.0, 0.0); engine.bins() * partitions],
+            data: vec![0.0; engine.split_len() * partitions],
             head: 0,
             previous: vec![0.0; engine.block_len()],
         }
@@ -139,42 +156,46 @@ impl SpectrumHistory {
     /// Transforms the next input block (`B` samples) and makes it the newest.
     pub fn push(&mut self, engine: &mut Upols, block: &[f32]) {
         self.head = (self.head + self.partitions - 1) % self.partitions;
-        let bins = self.bins;
-        let slot = &mut self.data[self.head * bins..(self.head + 1) * bins];
+        let n = self.split_len;
+        let slot = &mut self.data[self.head * n..(self.head + 1) * n];
         engine.input_spectrum(&self.previous, block, slot);
         self.previous.copy_from_slice(block);
     }
 
-    /// The spectrum of the block `age` blocks ago (0 = newest).
-    pub fn get(&self, age: usize) -> &[Complex<f32>] {
+    /// The split spectrum of the block `age` blocks ago (0 = newest).
+    pub fn get(&self, age: usize) -> &[f32] {
         let slot = (self.head + age) % self.partitions;
-        &self.data[slot * self.bins..(slot + 1) * self.bins]
+        &self.data[slot * self.split_len..(slot + 1) * self.split_len]
     }
 }
 
-/// `acc += Σ_{p in partitions} X_{b−p} · H_p`, with `filter` holding consecutive
-/// partition spectra starting at partition `partitions.start`.
+/// `acc += Σ_{p in partitions} X_{b−p} · H_p` on split spectra, with `filter`
+/// holding consecutive partition spectra starting at partition `partitions.start`.
 pub fn accumulate(
-    acc: &mut [Complex<f32>],
+    acc: &mut [f32],
     history: &SpectrumHistory,
-    filter: &[Complex<f32>],
+    filter: &[f32],
     partitions: std::ops::Range<usize>,
 ) {
-    let bins = acc.len();
+    let n = acc.len();
     let first = partitions.start;
     for p in partitions {
-        let h = &filter[(p - first) * bins..(p - first + 1) * bins];
+        let h = &filter[(p - first) * n..(p - first + 1) * n];
         multiply_add(acc, history.get(p), h);
     }
 }
 
-/// `acc += x · h`, element-wise complex, written on split real/imaginary
-/// arithmetic so that it vectorizes.
+/// `acc += x · h`, element-wise complex on split spectra (real parts, then
+/// imaginary parts).
 #[inline]
-pub fn multiply_add(acc: &mut [Complex<f32>], x: &[Complex<f32>], h: &[Complex<f32>]) {
-    for ((a, x), h) in acc.iter_mut().zip(x).zip(h) {
-        a.re += x.re * h.re - x.im * h.im;
-        a.im += x.re * h.im + x.im * h.re;
+pub fn multiply_add(acc: &mut [f32], x: &[f32], h: &[f32]) {
+    let n = acc.len() / 2;
+    let (ar, ai) = acc.split_at_mut(n);
+    let (xr, xi) = x.split_at(n);
+    let (hr, hi) = h.split_at(n);
+    for (((((ar, ai), xr), xi), hr), hi) in ar.iter_mut().zip(ai.iter_mut()).zip(xr).zip(xi).zip(hr).zip(hi) {
+        *ar += xr * hr - xi * hi;
+        *ai += xr * hi + xi * hr;
     }
 }
 
@@ -205,17 +226,17 @@ mod tests {
         let x: Vec<f32> = (0..1000).map(|i| (i * 53 % 97) as f32 / 48.0 - 1.0).collect();
         let mut engine = Upols::new(b);
         let p = engine.partitions_for(h.len());
-        let mut spectra = vec![Complex::new(0.0, 0.0); p * engine.bins()];
+        let mut spectra = vec![0.0f32; p * engine.split_len()];
         engine.filter_spectra(&h, &mut spectra);
         let mut hist = SpectrumHistory::new(&engine, p);
         let mut got = Vec::new();
-        let mut acc = vec![Complex::new(0.0f32, 0.0); engine.bins()];
+        let mut acc = vec![0.0f32; engine.split_len()];
         let mut out = vec![0.0f32; b];
         for block in x.chunks_exact(b) {
             hist.push(&mut engine, block);
-            acc.fill(Complex::new(0.0, 0.0));
+            acc.fill(0.0);
             accumulate(&mut acc, &hist, &spectra, 0..p);
-            engine.output_block(&mut acc, &mut out);
+            engine.output_block(&acc, &mut out);
             got.extend_from_slice(&out);
         }
         let mut want = vec![0.0; got.len()];

@@ -24,7 +24,6 @@
 //! more inverse FFT.
 
 use nalgebra::Point3;
-use realfft::num_complex::Complex;
 
 use super::convolution::{SpectrumHistory, Upols, accumulate};
 use super::image_source::ImageSource;
@@ -105,12 +104,12 @@ struct PairState {
     /// Tail samples inside the early partitions (time domain).
     tail_head: Vec<f64>,
     /// Spectra of tail partitions `P_e .. P`.
-    tail: Vec<Complex<f32>>,
+    tail: Vec<f32>,
     /// Spectra of partitions `0 .. P_e` (images + tail head), current and previous.
-    early: Vec<Complex<f32>>,
-    early_prev: Vec<Complex<f32>>,
+    early: Vec<f32>,
+    early_prev: Vec<f32>,
     /// `early − early_prev` while fading.
-    delta: Vec<Complex<f32>>,
+    delta: Vec<f32>,
     built_for: Option<(u64, Point3<f64>)>,
     fading: bool,
 }
@@ -132,8 +131,8 @@ pub struct ArrayRenderer {
     stats: RenderStats,
     ir: Vec<f64>,
     src_block: Vec<f32>,
-    acc: Vec<Complex<f32>>,
-    diff: Vec<Complex<f32>>,
+    acc: Vec<f32>,
+    diff: Vec<f32>,
     y: Vec<f32>,
     y_diff: Vec<f32>,
     ramp: Vec<f32>,
@@ -157,7 +156,7 @@ impl ArrayRenderer {
         }
         let mut engine = Upols::new(config.block_len);
         let b = config.block_len;
-        let bins = engine.bins();
+        let split = engine.split_len();
         let partitions = engine.partitions_for(model.len());
         let early_partitions = engine.partitions_for(model.early_len()).min(partitions);
         let fs = model.config().sample_rate_hz;
@@ -182,9 +181,9 @@ impl ArrayRenderer {
             for m in 0..m_count {
                 h.fill(0.0);
                 model.add_tail(tail_seed(config.seed, k, m), &mut h);
-                let mut tail = vec![Complex::new(0.0, 0.0); (partitions - early_partitions) * bins];
+                let mut tail = vec![0.0f32; (partitions - early_partitions) * split];
                 engine.filter_spectra(&h[early_len..], &mut tail);
-                let zeros = vec![Complex::new(0.0, 0.0); early_partitions * bins];
+                let zeros = vec![0.0f32; early_partitions * split];
                 pairs.push(PairState {
                     tail_head: h[..early_len].to_vec(),
                     tail,
@@ -202,8 +201,8 @@ impl ArrayRenderer {
             diffuse: None,
             ir: vec![0.0; early_len],
             src_block: vec![0.0; b],
-            acc: vec![Complex::new(0.0, 0.0); bins],
-            diff: vec![Complex::new(0.0, 0.0); bins],
+            acc: vec![0.0; split],
+            diff: vec![0.0; split],
             y: vec![0.0; b],
             y_diff: vec![0.0; b],
             ramp,
@@ -333,9 +332,9 @@ impl ArrayRenderer {
                     }
                 }
             }
-            self.acc.fill(Complex::new(0.0, 0.0));
+            self.acc.fill(0.0);
             if any_fading {
-                self.diff.fill(Complex::new(0.0, 0.0));
+                self.diff.fill(0.0);
             }
             for k in 0..s_count {
                 let hist = &self.sources[k].history;
@@ -348,10 +347,10 @@ impl ArrayRenderer {
                     accumulate(&mut self.acc, hist, &pair.early, 0..pe);
                 }
             }
-            self.engine.output_block(&mut self.acc, &mut self.y);
+            self.engine.output_block(&self.acc, &mut self.y);
             let dst = &mut out[m * b..(m + 1) * b];
             if any_fading {
-                self.engine.output_block(&mut self.diff, &mut self.y_diff);
+                self.engine.output_block(&self.diff, &mut self.y_diff);
                 for (((o, y), d), w) in dst.iter_mut().zip(&self.y).zip(&self.y_diff).zip(&self.ramp) {
                     *o = y + w * d;
                 }
