@@ -18,6 +18,33 @@
 //!    output has no discontinuity at block boundaries;
 //! 5. adds sensor noise and diffuse noise.
 //!
+//! Sample 0 of the first block is the scene start (sample 0 of every source
+//! signal); block `k` covers samples `k·B .. (k+1)·B`. Several arrays in one
+//! scene each get their own renderer (they can run on their own threads) and
+//! hear the same sources, since source signals are functions of the sample
+//! index.
+//!
+//! Usage, for an array at 3 m from a unit source with sensor noise 20 dB below
+//! the direct path (see [`super::noise`]):
+//!
+//! ```
+//! use nalgebra::{Point3, Vector3};
+//! use soundmap_sim::acoustics::{
+//!     ArrayConfig, RirConfig, Scene, ShoeboxRoom, SourceSignal, direct_path_rms, noise_std_for_snr,
+//! };
+//!
+//! let room = ShoeboxRoom::from_rt60(Point3::origin(), Vector3::new(12.5, 12.0, 3.0), 0.6)?;
+//! let scene = Scene { room, sources: vec![SourceSignal::white_noise(1.0, 7)], rir: RirConfig::default() };
+//! let mut config = ArrayConfig::new(2, 1);
+//! config.sensor_noise_std = noise_std_for_snr(direct_path_rms(1.0, 3.0), 20.0);
+//! let mut renderer = scene.renderer(config)?;
+//! let mics = [Point3::new(3.0, 3.0, 0.48), Point3::new(3.1, 3.0, 0.48)];
+//! let source = [Point3::new(6.0, 3.0, 1.12)];
+//! let mut block = vec![0.0f32; 2 * renderer.block_len()]; // planar: mic 0, then mic 1
+//! renderer.render_block(&mics, &source, &mut block)?;
+//! # Ok::<(), soundmap_sim::SimError>(())
+//! ```
+//!
 //! Cost per block and microphone: `P` complex multiply-adds per bin per source
 //! (`P = ⌈IR length / B⌉`), one inverse FFT of `2B`, and for a moved pair an
 //! image sum, `P_e` forward FFTs (`P_e` partitions of early response) and one
@@ -50,6 +77,8 @@ pub struct ArrayConfig {
     /// Diffuse background noise, if any.
     pub diffuse_noise: Option<DiffuseNoiseConfig>,
     /// Seed of everything random that belongs to this array (tails, noises).
+    /// Give every array of a scene its own seed, or their reverberation tails
+    /// and noises will be identical.
     pub seed: u64,
     /// Impulse responses are rebuilt when a source or microphone has moved more
     /// than this from where they were built (m).

@@ -18,9 +18,10 @@
 //! default, past the mixing time ≈ √V ms of rooms up to 6000 m³) or earlier,
 //! where the image series' expected energy has drifted `image_excess_db` above
 //! the Eyring decay: with uniform absorption a flat room's image series keeps
-//! its grazing paths and decays ever more slowly (a pure image model of the
-//! paper's room at RT60 0.3 s measures T30 ≈ 0.45 s), whereas real rooms
-//! scatter. In the paper's room at RT60 0.6 s, `t_c` ≈ 75 ms.
+//! its grazing paths and decays ever more slowly, whereas real rooms scatter: a
+//! pure image model (order ≤ 500) of the paper's 12.5 × 12 × 3 m room with the
+//! Eyring absorption for 0.6 s measures T30 = 1.1 s (0.57 s for 0.3 s). In that
+//! room `t_c` is 80 ms at RT60 0.6 s and 48 ms at 0.3 s.
 //!
 //! The tail's starting level is the image series' *expected* energy rate at
 //! time `t`: images fill space with density `1/V`, so a shell of radius `r = ct`
@@ -43,10 +44,9 @@
 //! result by linearity, once per source rather than per response.
 //!
 //! Why a hybrid: the image count grows as `t³` (≈ 190 images below 80 ms in
-//! the paper's 450 m³ room, ≈ 80 000 below 0.6 s), and beyond the mixing
-//! time (≈ √V ms ≈ 21 ms here) a real room's response is diffuse; a pure
-//! image model of a flat room also decays too slowly late (grazing paths
-//! between the far walls meet few walls), whereas real rooms scatter.
+//! the paper's 450 m³ room, ≈ 80 000 below 0.6 s), beyond the mixing time
+//! (≈ √V ms ≈ 21 ms here) a real room's response is diffuse, and the pure
+//! image model of a flat room decays far too slowly (above).
 
 use nalgebra::{Point3, Vector3};
 use rand::{RngExt, SeedableRng};
