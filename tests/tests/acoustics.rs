@@ -353,7 +353,7 @@ fn diffuse_noise_coherence_follows_sinc() {
         let rms_err = (sq / n as f64).sqrt();
         println!("d = {d:.3} m: RMS error of Re(coherence) vs sinc(kd) {rms_err:.3}, max |Im| {worst_im:.3}");
         assert!(rms_err < 0.08, "d = {d}: coherence RMS error {rms_err}");
-        assert!(worst_im < 0.25, "d = {d}: imaginary coherence {worst_im}");
+        assert!(worst_im < 0.15, "d = {d}: imaginary coherence {worst_im}");
     }
 }
 

@@ -4,8 +4,9 @@
 //! set from an SNR against the direct-path level at the array with
 //! [`direct_path_rms`] and [`noise_std_for_snr`].
 //!
-//! **Diffuse noise** is the sum of `K` plane waves of independent white noise
-//! arriving from a Fibonacci sphere of directions, so that the coherence between
+//! **Diffuse noise** is the sum of `2K` plane waves of independent white noise
+//! arriving from `K` directions of a Fibonacci sphere and from their opposites
+//! (so that the expected cross-spectra are real), so that the coherence between
 //! two microphones a distance `d` apart tends to `sinc(kd) = sin(kd)/(kd)`. It is
 //! synthesized once, in the frequency domain, as a periodic loop of `N` samples:
 //! per bin, `Y_m(f) = Σ_k Z_k(f)·exp(j·2πf·u_k·p_m/c)` with complex Gaussian `Z_k`.
@@ -69,12 +70,14 @@ pub struct DiffuseNoiseConfig {
     pub std: f64,
     /// Loop length (samples, even); the field repeats after this.
     pub loop_len: usize,
-    /// Number of plane-wave directions.
+    /// Number of Fibonacci-sphere directions; each also gets its opposite, so
+    /// the field has twice as many plane waves.
     pub directions: usize,
 }
 
 impl DiffuseNoiseConfig {
-    /// A field of RMS `std` with a 65 536-sample loop (4.1 s at 16 kHz) and 128 directions.
+    /// A field of RMS `std` with a 65 536-sample loop (4.1 s at 16 kHz) and 128
+    /// directions (256 plane waves).
     pub fn with_std(std: f64) -> Self {
         DiffuseNoiseConfig { std, loop_len: 1 << 16, directions: 128 }
     }
@@ -116,7 +119,10 @@ impl DiffuseNoise {
         }
         let m_count = microphones.len();
         let centroid = microphones.iter().fold(Vector3::zeros(), |a, p| a + p.coords) / m_count.max(1) as f64;
-        let dirs = fibonacci_sphere(config.directions);
+        // Antipodal pairs: the expected cross-spectrum is then exactly real, like
+        // the isotropic field's sinc.
+        let half = fibonacci_sphere(config.directions);
+        let dirs: Vec<Vector3<f64>> = half.iter().copied().chain(half.iter().map(|u| -u)).collect();
         // Delay of direction k at microphone m (s): a wave from direction u reaches p early by u·p/c.
         let tau: Vec<f64> = dirs
             .iter()
