@@ -441,6 +441,13 @@ fn same_seed_same_output() {
 }
 
 #[test]
+fn renderers_can_move_to_their_own_threads() {
+    fn assert_send<T: Send>() {}
+    assert_send::<soundmap_sim::acoustics::ArrayRenderer>();
+    assert_send::<Scene>();
+}
+
+#[test]
 fn bad_inputs_are_clear_errors() {
     let scene = Scene {
         room: paper_room(0.6),
