@@ -25,6 +25,8 @@ pub mod grid;
 pub mod phat;
 pub mod refine;
 pub mod search;
+#[cfg(test)]
+mod tests;
 
 use std::path::PathBuf;
 
@@ -388,7 +390,10 @@ impl Srp {
                     if self.region.axis.dot(&mirror) > self.region.axis.dot(&start) { mirror } else { start };
                 self.refiner.refine_planar(&self.cc, side, &n, &self.gains, iterations, self.max_step_rad)
             }
-            None => self.refiner.refine(&self.cc, start, &self.gains, iterations, self.max_step_rad),
+            None => {
+                let start = self.region.clamp(start);
+                self.refiner.refine(&self.cc, start, &self.gains, iterations, self.max_step_rad, &self.region)
+            }
         };
         let d = self.region.clamp(d);
         // Normalized so that a plane wave carrying all the (remaining) energy

@@ -103,8 +103,9 @@ mod tests {
         let near = DiffuseMap::new(&axis, &[0.02], (2, 128), 256, 16000.0, 343.0);
         let far = DiffuseMap::new(&axis, &[0.5], (2, 128), 256, 16000.0, 343.0);
         assert!(near.at(&Vector3::z()) > 0.5 && far.at(&Vector3::z()) < 0.05);
-        // A pair along x sees zero TDOA broadside (z) and the largest one endfire (x).
-        let one_sample = DiffuseMap::new(&axis, &[0.05], (2, 128), 256, 16000.0, 343.0);
-        assert!(one_sample.at(&Vector3::z()) > one_sample.at(&Vector3::x()));
+        // A 5 cm pair along x: zero TDOA broadside (z), the largest endfire (x).
+        let five_cm = [Vector3::new(0.05 * 16000.0 / 343.0, 0.0, 0.0)];
+        let m = DiffuseMap::new(&five_cm, &[0.05], (2, 128), 256, 16000.0, 343.0);
+        assert!(m.at(&Vector3::z()) > m.at(&Vector3::x()), "{} {}", m.at(&Vector3::z()), m.at(&Vector3::x()));
     }
 }

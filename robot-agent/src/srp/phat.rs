@@ -265,7 +265,8 @@ impl CrossCorrelator {
     }
 
     /// Zeroes pair `p`'s correlation around fractional lag index `t`
-    /// (`t = lag + R`) over `±half` lags and updates its sliding maximum.
+    /// (`t = lag + R`) over `±half` lags, and updates its interpolation
+    /// table and sliding maxima there.
     pub(super) fn suppress(&mut self, p: usize, t: f32, half: usize) {
         let s = self.stride;
         let c = t.floor().max(0.0) as usize;
@@ -278,12 +279,17 @@ impl CrossCorrelator {
             let next = if q + 1 < s { row[q + 1] } else { row[q] };
             self.lin[p * s + q] = [row[q], next - row[q]];
         }
+        // Sliding maxima over windows that contain a zeroed lag (exact bounds
+        // matter: stale ones would send the next search back to this peak).
         let w = self.window[p];
         let (a, b) = (lo.saturating_sub(w), (hi + w).min(s - 1));
         for q in a..=b {
             let (l, h) = (q.saturating_sub(w), (q + w).min(s - 1));
-            self.cc_max[p * s + q] =
-                row[l..=h].iter().fold(f32::NEG_INFINITY, |m, &v| if v > m { v } else { m });
+            let mut m = f32::NEG_INFINITY;
+            for &v in &row[l..=h] {
+                m = if v > m { v } else { m };
+            }
+            self.cc_max[p * s + q] = m;
         }
     }
 }

@@ -18,6 +18,7 @@
 use nalgebra::{Unit, Vector3};
 
 use super::phat::CrossCorrelator;
+use crate::array::SearchRegion;
 
 /// Bins processed together in the inner loops.
 const LANES: usize = 8;
@@ -223,6 +224,9 @@ impl Refiner {
     /// Newton ascent from `d0`: at most `iterations` steps, each at most
     /// `max_step_rad`, backtracking when the power drops, stopping once a
     /// step is below 1e-4 rad. Returns the refined direction and the power.
+    ///
+    /// Every iterate is kept inside `region` (projected ascent): a source
+    /// near the edge of a hemisphere is not pulled onto its mirror image.
     pub fn refine(
         &mut self,
         cc: &CrossCorrelator,
@@ -230,6 +234,7 @@ impl Refiner {
         gains: &[f32],
         iterations: usize,
         max_step_rad: f64,
+        region: &SearchRegion,
     ) -> (Unit<Vector3<f64>>, Local) {
         let mut d = d0;
         let (mut e1, mut e2) = tangent_basis(&d);
@@ -237,12 +242,12 @@ impl Refiner {
         for _ in 0..iterations {
             let mut step = newton_step(&cur, max_step_rad);
             if norm(step) < STEP_TOLERANCE {
-                d = exp_map(&d, &e1, &e2, step);
+                d = region.clamp(exp_map(&d, &e1, &e2, step));
                 break;
             }
             let mut accepted = false;
             for _ in 0..4 {
-                let cand = exp_map(&d, &e1, &e2, step);
+                let cand = region.clamp(exp_map(&d, &e1, &e2, step));
                 let (c1, c2) = tangent_basis(&cand);
                 let next = self.local(cc, &cand, &c1, &c2, gains, true);
                 if next.power >= cur.power {
@@ -352,20 +357,30 @@ fn norm([u, v]: [f64; 2]) -> f64 {
     (u * u + v * v).sqrt()
 }
 
-/// Newton step on `local` (gradient step of a quarter of `max_step` where
-/// the power is not concave), at most `max_step` long.
+/// Ascent step on `local`, at most `max_step` long: along each eigenvector
+/// of the Hessian, the Newton step where the power is concave, and a step of
+/// half `max_step` up the gradient where it is not (at a saddle, e.g. between
+/// a source and its mirror image near the plane of a flat array).
 fn newton_step(local: &Local, max_step: f64) -> [f64; 2] {
-    let [huu, huv, hvv] = local.hess;
-    let det = huu * hvv - huv * huv;
-    let [gu, gv] = local.grad;
-    let step = if huu < 0.0 && det > 0.0 {
-        [-(hvv * gu - huv * gv) / det, -(-huv * gu + huu * gv) / det]
-    } else {
-        let n = norm([gu, gv]).max(1e-30);
-        [0.25 * max_step * gu / n, 0.25 * max_step * gv / n]
-    };
-    let len = norm(step);
-    if len > max_step { [step[0] * max_step / len, step[1] * max_step / len] } else { step }
+    let [a, b, c] = local.hess;
+    let g = nalgebra::Vector2::new(local.grad[0], local.grad[1]);
+    let eig = nalgebra::Matrix2::new(a, b, b, c).symmetric_eigen();
+    let scale = eig.eigenvalues.abs().max().max(1e-30);
+    let mut step = nalgebra::Vector2::zeros();
+    for i in 0..2 {
+        let (lambda, v) = (eig.eigenvalues[i], eig.eigenvectors.column(i).into_owned());
+        let gv = g.dot(&v);
+        step += if lambda < -1e-9 * scale {
+            v * (-gv / lambda)
+        } else if gv.abs() > 0.0 {
+            v * (0.5 * max_step * gv.signum())
+        } else {
+            nalgebra::Vector2::zeros()
+        };
+    }
+    let len = step.norm();
+    let step = if len > max_step { step * (max_step / len) } else { step };
+    [step.x, step.y]
 }
 
 /// An orthonormal basis `(e₁, e₂)` of the tangent plane at `d`, right-handed

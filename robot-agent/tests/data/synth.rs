@@ -53,10 +53,16 @@ fn add_plane_waves(
         fft.process(&mut s, &mut spec).unwrap();
         for (m, p) in mics.iter().enumerate() {
             let advance = p.dot(d) / C; // seconds
+            // e^{jωₖ·advance} by recursion over k (re-anchored every 1024 bins).
+            let dw = 2.0 * std::f64::consts::PI * fs / len as f64 * advance;
+            let step = Complex::new(dw.cos(), dw.sin());
+            let mut ph = step;
             for k in 1..len / 2 {
-                let w = 2.0 * std::f64::consts::PI * k as f64 * fs / len as f64;
-                let ph = Complex::new((w * advance).cos(), (w * advance).sin());
+                if k % 1024 == 0 {
+                    ph = Complex::new((dw * k as f64).cos(), (dw * k as f64).sin());
+                }
                 acc[m][k] += spec[k] * ph;
+                ph *= step;
             }
         }
     }
@@ -149,18 +155,24 @@ pub fn moving_source(
         }
     }
     inv.process(&mut spec, &mut s).unwrap();
+    let pi = std::f64::consts::PI;
     let at = |x: f64| -> f64 {
         let i0 = x.floor() as isize;
+        let frac = x - i0 as f64;
+        if frac.abs() < 1e-12 {
+            return s[i0.rem_euclid(n as isize) as usize];
+        }
+        // sin(π(x − j)) = ±sin(π·frac); the Hann window by rotation over taps.
+        let s_frac = (pi * frac).sin();
+        let step = Complex::new((pi / HALF as f64).cos(), (pi / HALF as f64).sin());
+        let u0 = x - (i0 - HALF + 1) as f64;
+        let mut win = Complex::new((pi * u0 / HALF as f64).cos(), -(pi * u0 / HALF as f64).sin());
         let mut acc = 0.0;
         for j in i0 - HALF + 1..=i0 + HALF {
             let u = x - j as f64;
-            let sinc = if u.abs() < 1e-12 {
-                1.0
-            } else {
-                (std::f64::consts::PI * u).sin() / (std::f64::consts::PI * u)
-            };
-            let win = 0.5 + 0.5 * (std::f64::consts::PI * u / HALF as f64).cos();
-            acc += s[j.rem_euclid(n as isize) as usize] * sinc * win;
+            let sign = if (i0 - j).rem_euclid(2) == 0 { 1.0 } else { -1.0 };
+            acc += s[j.rem_euclid(n as isize) as usize] * (sign * s_frac / (pi * u)) * (0.5 + 0.5 * win.re);
+            win *= step;
         }
         acc
     };

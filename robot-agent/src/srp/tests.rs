@@ -1,0 +1,188 @@
+//! Tests of the localizer against exact, frame-level plane waves: spectra
+//! built directly as `Xᵢ[k] = S[k] e^{jωₖ pᵢ·d/c}` (no window edge effects),
+//! so a noise-free plane wave must be found to numerical precision.
+
+use nalgebra::{Isometry3, Point3, Vector3};
+use proptest::prelude::*;
+use realfft::num_complex::Complex;
+
+use super::*;
+use crate::array::{ArrayGeometry, Microphone, SearchRegion};
+
+const FS: u32 = 16000;
+const N: usize = 256;
+
+/// Spectra (channel-major, N/2+1 bins) of plane waves from `dirs` with
+/// amplitudes `amps`, each with a deterministic pseudo-random source spectrum.
+fn spectra(array: &ArrayGeometry, dirs: &[Vector3<f64>], amps: &[f64], seed: u64) -> Vec<Complex<f32>> {
+    let bins = N / 2 + 1;
+    let mut out = vec![Complex::new(0.0f32, 0.0); array.channels() * bins];
+    let mut state = seed.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+    let mut next = move || {
+        state = state.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+        ((state >> 11) as f64 / (1u64 << 53) as f64) * std::f64::consts::TAU
+    };
+    for (d, &a) in dirs.iter().zip(amps) {
+        for k in 0..bins {
+            let phase = next();
+            let w = std::f64::consts::TAU * k as f64 * FS as f64 / N as f64;
+            for (i, m) in array.microphones.iter().enumerate() {
+                let ph = phase + w * m.position.coords.dot(d) / 343.0;
+                out[i * bins + k] += Complex::new((a * ph.cos()) as f32, (a * ph.sin()) as f32);
+            }
+        }
+    }
+    out
+}
+
+fn localize(array: &ArrayGeometry, config: &SrpConfig, x: &[Complex<f32>]) -> Vec<PotentialSource> {
+    let mut srp = Srp::new(array, FS, N, config).unwrap();
+    let mut out = Vec::with_capacity(config.max_sources);
+    srp.process(x, &mut out);
+    out
+}
+
+fn deg(a: &Vector3<f64>, b: &Vector3<f64>) -> f64 {
+    a.angle(b).to_degrees()
+}
+
+#[test]
+fn tdoa_convention_matches_the_geometry() {
+    let array = ArrayGeometry::load("respeaker-4").unwrap();
+    let srp = Srp::new(&array, FS, N, &SrpConfig::default()).unwrap();
+    // Pair (0, 2): microphones at x = −32 mm and +32 mm. A source along +x
+    // reaches microphone 2 first: τ = (p₂ − p₀)·d fs/c > 0 samples.
+    let p = 1; // pairs in order (0,1), (0,2), ...
+    let t = srp.tdoa_samples(p, &Vector3::x());
+    assert!((t - 0.064 * 16000.0 / 343.0).abs() < 1e-9, "{t}");
+}
+
+#[test]
+fn packed_correlations_peak_at_each_pairs_tdoa() {
+    // Three microphones → pairs (0,1), (0,2) share one FFT, (1,2) is alone.
+    let mics = [Point3::new(0.0, 0.0, 0.0), Point3::new(0.1, 0.02, 0.0), Point3::new(-0.03, 0.12, 0.05)];
+    let array = ArrayGeometry::new(
+        "three",
+        mics.iter().map(|&p| Microphone::omni(p)).collect(),
+        Isometry3::identity(),
+        SearchRegion::full_sphere(),
+        std::path::Path::new("<test>"),
+    )
+    .unwrap();
+    let d = Vector3::new(0.3, -0.5, 0.8).normalize();
+    let mut srp = Srp::new(&array, FS, N, &SrpConfig::default()).unwrap();
+    let x = spectra(&array, &[d], &[1.0], 1);
+    srp.correlate_only(&x);
+    let r = srp.cc.lag_radius as f64;
+    for p in 0..3 {
+        let row = &srp.cc.cc[p * srp.cc.stride..(p + 1) * srp.cc.stride - 1];
+        let (imax, _) =
+            row.iter().enumerate().fold((0, f32::MIN), |b, (i, &v)| if v > b.1 { (i, v) } else { b });
+        let expected = srp.tdoa_samples(p, &d) + r;
+        assert!(
+            (imax as f64 - expected).abs() <= 0.5 + 1e-9,
+            "pair {p}: peak at {imax}, TDOA index {expected}"
+        );
+    }
+}
+
+#[test]
+fn noise_free_plane_waves_are_found_exactly_on_every_preset() {
+    for name in crate::array::presets::NAMES {
+        let array = ArrayGeometry::load(name).unwrap();
+        for (s, d) in
+            [Vector3::new(0.6, 0.3, 0.74), Vector3::new(-0.2, -0.9, 0.1), Vector3::new(0.0, 0.1, 0.99)]
+                .iter()
+                .enumerate()
+        {
+            let d = d.normalize();
+            let out = localize(&array, &SrpConfig::default(), &spectra(&array, &[d], &[1.0], s as u64));
+            let err = deg(&out[0].direction, &d);
+            assert!(err < 0.01, "{name}: error {err}° toward {d:?}");
+            assert!((out[0].energy - 1.0).abs() < 1e-3, "{name}: coherence {}", out[0].energy);
+        }
+    }
+}
+
+#[test]
+fn second_potential_finds_a_second_source_not_a_sidelobe() {
+    let array = ArrayGeometry::load("16soundsusb-pioneer").unwrap();
+    let (a, b) = (Vector3::new(0.8, 0.3, 0.52).normalize(), Vector3::new(-0.4, -0.7, 0.6).normalize());
+    let out = localize(&array, &SrpConfig::default(), &spectra(&array, &[a, b], &[1.0, 0.7], 9));
+    assert_eq!(out.len(), 2);
+    assert!(deg(&out[0].direction, &a) < 0.5, "{:?}", out[0]);
+    assert!(deg(&out[1].direction, &b) < 0.5, "{:?}", out[1]);
+    // One source only: the second potential is weak (its sidelobes were projected out).
+    let single = localize(&array, &SrpConfig::default(), &spectra(&array, &[a], &[1.0], 9));
+    assert!(single[1].energy < 0.1, "{:?}", single[1]);
+}
+
+#[test]
+fn silence_gives_no_potential() {
+    let array = ArrayGeometry::load("uma8").unwrap();
+    let x = vec![Complex::new(0.0f32, 0.0); array.channels() * (N / 2 + 1)];
+    assert!(localize(&array, &SrpConfig::default(), &x).is_empty());
+}
+
+#[test]
+fn directional_microphones_still_localize() {
+    let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data/arrays/square-4.toml");
+    let mut array = ArrayGeometry::load(path.to_str().unwrap()).unwrap();
+    for m in &mut array.microphones {
+        m.direction = Some(Vector3::z_axis());
+    }
+    let d = Vector3::new(0.5, 0.5, 0.7).normalize();
+    let out = localize(&array, &SrpConfig::default(), &spectra(&array, &[d], &[1.0], 4));
+    assert!(deg(&out[0].direction, &d) < 0.01);
+    assert!((out[0].energy - 1.0).abs() < 1e-3, "{}", out[0].energy);
+}
+
+#[test]
+fn bad_settings_are_rejected() {
+    let array = ArrayGeometry::load("respeaker-4").unwrap();
+    let bad = |f: fn(&mut SrpConfig)| {
+        let mut c = SrpConfig::default();
+        f(&mut c);
+        Srp::new(&array, FS, N, &c).unwrap_err()
+    };
+    assert!(matches!(bad(|c| c.speed_of_sound_m_s = 0.0), AgentError::InvalidParameter { .. }));
+    assert!(matches!(bad(|c| c.min_frequency_hz = 7990.0), AgentError::InvalidParameter { .. }));
+    assert!(matches!(bad(|c| c.coarse_level = 5), AgentError::InvalidParameter { .. }));
+    assert!(matches!(bad(|c| c.max_sources = 0), AgentError::InvalidParameter { .. }));
+    let big = ArrayGeometry::load("16soundsusb-pioneer").unwrap();
+    assert!(Srp::new(&big, 48000, 64, &SrpConfig::default()).is_err(), "frames too short for the aperture");
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig { cases: 24, ..ProptestConfig::default() })]
+
+    /// Noise-free exactness on random non-planar arrays and directions over
+    /// the whole sphere.
+    #[test]
+    fn random_arrays_find_noise_free_sources(
+        mics in prop::collection::vec(prop::array::uniform3(-0.08f64..0.08), 5..9),
+        dir in prop::array::uniform3(-1.0f64..1.0),
+        seed in 0u64..1000,
+    ) {
+        let d = Vector3::from(dir);
+        prop_assume!(d.norm() > 0.2);
+        let d = d.normalize();
+        let microphones: Vec<_> = mics.iter().map(|&p| Microphone::omni(Point3::from(p))).collect();
+        let array = ArrayGeometry::new(
+            "random", microphones, Isometry3::identity(), SearchRegion::full_sphere(), std::path::Path::new("<test>"),
+        );
+        prop_assume!(array.is_ok());
+        let array = array.unwrap();
+        // Well-spread in 3D: the smallest principal spread is at least 2 cm.
+        let c = array.centroid();
+        let mut s = nalgebra::Matrix3::zeros();
+        for p in array.positions() {
+            s += (p - c) * (p - c).transpose();
+        }
+        prop_assume!((s.symmetric_eigen().eigenvalues.min() / array.channels() as f64).sqrt() > 0.02);
+        let config = SrpConfig { region: Some(RegionConfig { axis: [0.0, 0.0, 1.0], max_angle_deg: 180.0 }), ..SrpConfig::default() };
+        let out = localize(&array, &config, &spectra(&array, &[d], &[1.0], seed));
+        prop_assert!(deg(&out[0].direction, &d) < 0.01, "error {}°", deg(&out[0].direction, &d));
+        prop_assert!((out[0].energy - 1.0).abs() < 1e-3);
+    }
+}
