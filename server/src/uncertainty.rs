@@ -61,8 +61,14 @@ pub fn angle_between_deg(a: &Vector3<f64>, b: &Vector3<f64>) -> f64 {
 /// matrix Ā = Σ(I − dᵢdᵢᵀ)/N (theory §1.4). Two rays at angle θ give
 /// 2/(1 − |cos θ|); the paper's 40–140° band is κ ≤ 8.55. Infinite when singular.
 pub fn condition_number(directions: &[Unit<Vector3<f64>>]) -> f64 {
-    if directions.is_empty() {
-        return f64::INFINITY;
+    match directions {
+        [] => return f64::INFINITY,
+        // Closed form for two rays (theory §1.4).
+        [a, b] => {
+            let c = a.dot(b).abs().min(1.0);
+            return if c >= 1.0 - 1e-15 { f64::INFINITY } else { 2.0 / (1.0 - c) };
+        }
+        _ => {}
     }
     let a = directions
         .iter()
@@ -88,32 +94,90 @@ pub struct GeometryQuality {
     pub gdop: f64,
     /// Mean range from the sensors to the point (m).
     pub mean_range_m: f64,
-    /// Angle at the point between each pair of sensors (i, j, degrees), i < j.
+    /// Angle at the point between each pair of sensors (i, j, degrees), i < j; for
+    /// more than [`MAX_LISTED_PAIRS_ROBOTS`] sensors only the best pair.
     pub pairwise_theta_deg: Vec<(usize, usize, f64)>,
     /// Two sensors: their θ. More: the pairwise θ closest to 90° (the best pair). 0 for one sensor.
     pub theta_deg: f64,
 }
 
+/// Anything that is a bearing sensor for the information calculus.
+pub trait AsSensor {
+    /// The sensor.
+    fn sensor(&self) -> Sensor;
+}
+
+impl AsSensor for Sensor {
+    fn sensor(&self) -> Sensor {
+        *self
+    }
+}
+
+impl AsSensor for Ray {
+    fn sensor(&self) -> Sensor {
+        Sensor::from(self)
+    }
+}
+
 /// Evaluates the geometry of `sensors` for a source at `x`.
-pub fn assess(sensors: &[Sensor], x: &Point3<f64>) -> GeometryQuality {
-    let fisher = fisher_information(sensors, x);
+pub fn assess<S: AsSensor>(sensors: &[S], x: &Point3<f64>) -> GeometryQuality {
+    let mut fisher = Matrix3::zeros();
+    let mut g = Matrix3::zeros();
+    let mut range_sum = 0.0;
+    for s in sensors {
+        let s = s.sensor();
+        let v = x - s.origin;
+        let r = v.norm().max(MIN_RANGE_M);
+        let u = v / r;
+        let p = Matrix3::identity() - u * u.transpose();
+        fisher += p / s.lateral_variance(r);
+        g += p / (r * r);
+        range_sum += r;
+    }
+    let mean_range_m = if sensors.is_empty() { 0.0 } else { range_sum / sensors.len() as f64 };
+    // G = Σ (r̄/rᵢ)²(I − uᵢuᵢᵀ) = r̄² Σ (I − uᵢuᵢᵀ)/rᵢ².
+    g *= mean_range_m * mean_range_m;
     let covariance = invert_spd(&fisher);
     let rms_m = covariance.map_or(f64::INFINITY, |c| c.trace().max(0.0).sqrt());
-    let ranges: Vec<f64> = sensors.iter().map(|s| (x - s.origin).norm().max(MIN_RANGE_M)).collect();
-    let mean_range_m = if ranges.is_empty() { 0.0 } else { ranges.iter().sum::<f64>() / ranges.len() as f64 };
-    let g = sensors.iter().zip(&ranges).fold(Matrix3::zeros(), |acc, (s, r)| {
-        let u = (x - s.origin) / *r;
-        acc + (Matrix3::identity() - u * u.transpose()) * (mean_range_m / r).powi(2)
-    });
     let gdop = invert_spd(&g).map_or(f64::INFINITY, |c| c.trace().max(0.0).sqrt());
-    let mut pairwise_theta_deg = Vec::with_capacity(sensors.len() * sensors.len().saturating_sub(1) / 2);
-    for i in 0..sensors.len() {
-        for j in (i + 1)..sensors.len() {
-            pairwise_theta_deg.push((i, j, angle_at_deg(x, &sensors[i].origin, &sensors[j].origin)));
+    let (pairwise_theta_deg, theta_deg) = pairwise_angles(sensors, x);
+    GeometryQuality { fisher, covariance, rms_m, gdop, mean_range_m, pairwise_theta_deg, theta_deg }
+}
+
+/// Most robots for which every pairwise θ is listed; above it only the best pair is.
+pub const MAX_LISTED_PAIRS_ROBOTS: usize = 8;
+
+/// Pairwise θ at `x` (listed for up to [`MAX_LISTED_PAIRS_ROBOTS`] sensors) and
+/// the θ closest to 90°. The best pair is found from dot products, so that many
+/// robots cost O(N²) multiplications, not O(N²) trigonometry.
+fn pairwise_angles<S: AsSensor>(sensors: &[S], x: &Point3<f64>) -> (Vec<(usize, usize, f64)>, f64) {
+    let n = sensors.len();
+    if n <= MAX_LISTED_PAIRS_ROBOTS {
+        let mut list = Vec::with_capacity(n * n.saturating_sub(1) / 2);
+        for i in 0..n {
+            for j in (i + 1)..n {
+                list.push((i, j, angle_at_deg(x, &sensors[i].sensor().origin, &sensors[j].sensor().origin)));
+            }
+        }
+        let best = best_pair_theta(&list);
+        return (list, best);
+    }
+    let dirs: Vec<Vector3<f64>> = sensors
+        .iter()
+        .map(|s| (s.sensor().origin - x).try_normalize(0.0).unwrap_or_else(Vector3::zeros))
+        .collect();
+    let mut best = (f64::INFINITY, 0, 1);
+    for i in 0..n {
+        for j in (i + 1)..n {
+            let c = dirs[i].dot(&dirs[j]).abs();
+            if c < best.0 {
+                best = (c, i, j);
+            }
         }
     }
-    let theta_deg = best_pair_theta(&pairwise_theta_deg);
-    GeometryQuality { fisher, covariance, rms_m, gdop, mean_range_m, pairwise_theta_deg, theta_deg }
+    let (_, i, j) = best;
+    let theta = angle_at_deg(x, &sensors[i].sensor().origin, &sensors[j].sensor().origin);
+    (vec![(i, j, theta)], theta)
 }
 
 /// The pairwise θ closest to 90° (0 when there is no pair).
@@ -122,18 +186,21 @@ pub fn best_pair_theta(pairwise: &[(usize, usize, f64)]) -> f64 {
 }
 
 /// Inverse of a symmetric positive semi-definite 3×3 matrix, `None` when it is
-/// singular to working precision (smallest eigenvalue ≤ 1e-12 × largest).
+/// singular to working precision. The test is scale-free: det M ≤ 1e-13 (tr M/3)³,
+/// i.e. λ_min/λ_max below about 1e-13 (the other eigenvalues are at most tr M).
 pub fn invert_spd(m: &Matrix3<f64>) -> Option<Matrix3<f64>> {
-    if !m.iter().all(|v| v.is_finite()) {
+    let scale = m.trace() / 3.0;
+    if !(scale > 0.0) || !scale.is_finite() {
         return None;
     }
-    let eig = SymmetricEigen::new(*m);
-    let hi = eig.eigenvalues.max();
-    if hi <= 0.0 || eig.eigenvalues.min() <= hi * 1e-12 {
+    let det = m.determinant();
+    if !(det > 1e-13 * scale * scale * scale) {
         return None;
     }
-    let inv_diag = Matrix3::from_diagonal(&eig.eigenvalues.map(|l| 1.0 / l));
-    Some(eig.eigenvectors * inv_diag * eig.eigenvectors.transpose())
+    let inv = m.try_inverse()?;
+    // Symmetrize away rounding, and refuse anything that is not finite.
+    let inv = (inv + inv.transpose()) * 0.5;
+    inv.iter().all(|v| v.is_finite()).then_some(inv)
 }
 
 #[cfg(test)]

@@ -1,7 +1,9 @@
-//! The one task that owns the [`Coordinator`]. Handlers send it requests over
-//! a channel; it processes them in batches (so that under load one estimate
-//! covers many observations), publishes estimates, and answers each stream in
-//! order: stream errors, then commands, then the acknowledgement.
+//! The one task that owns the [`Coordinator`]. It runs on its own OS thread
+//! (its work is CPU-bound and must not queue behind hundreds of stream tasks).
+//! Handlers send it requests over a channel; it processes them in batches (so
+//! that under load one estimate covers many observations), publishes
+//! estimates, and answers each stream in order: stream errors, then commands,
+//! then the acknowledgement.
 
 use std::collections::HashMap;
 use std::sync::Arc;
@@ -81,6 +83,10 @@ pub enum Request {
         /// Where the answer goes.
         reply: oneshot::Sender<wire::CoordinatorState>,
     },
+    /// Housekeeping (liveness) is due.
+    Tick,
+    /// Finish the requests already queued, then stop.
+    Stop,
 }
 
 /// Per-stream bookkeeping of the task.
@@ -100,7 +106,6 @@ pub struct Actor {
     metrics: Arc<Metrics>,
     /// Receipt times of observations waiting for an estimate.
     receipts: Vec<Instant>,
-    tick: Option<Duration>,
 }
 
 impl std::fmt::Debug for Actor {
@@ -118,50 +123,16 @@ impl Actor {
         sink: Option<mpsc::UnboundedSender<Arc<wire::SourceEstimate>>>,
         metrics: Arc<Metrics>,
     ) -> Self {
-        let tick = match coordinator.config().liveness.tick_ms {
-            0 => None,
-            ms => Some(Duration::from_millis(ms)),
-        };
-        Actor {
-            coordinator,
-            clock,
-            streams: HashMap::new(),
-            estimates,
-            sink,
-            metrics,
-            receipts: Vec::new(),
-            tick,
-        }
+        Actor { coordinator, clock, streams: HashMap::new(), estimates, sink, metrics, receipts: Vec::new() }
     }
 
-    /// Runs until every request sender is gone or shutdown begins (requests
-    /// already queued are handled first).
-    pub async fn run(
-        mut self,
-        mut requests: mpsc::Receiver<Request>,
-        mut stopping: tokio::sync::watch::Receiver<bool>,
-    ) {
-        let mut ticker = self.tick.map(|p| {
-            let mut i = tokio::time::interval(p);
-            i.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
-            i
-        });
+    /// Runs on the calling thread until every request sender is gone or a
+    /// [`Request::Stop`] arrives (requests queued before it are handled).
+    pub fn run(mut self, mut requests: mpsc::Receiver<Request>) {
         let mut batch = Vec::with_capacity(MAX_BATCH);
-        loop {
-            let first = match &mut ticker {
-                Some(t) => tokio::select! {
-                    biased;
-                    r = requests.recv() => r,
-                    _ = stopping.wait_for(|s| *s) => None,
-                    _ = t.tick() => { self.housekeeping(); continue; }
-                },
-                None => tokio::select! {
-                    biased;
-                    r = requests.recv() => r,
-                    _ = stopping.wait_for(|s| *s) => None,
-                },
-            };
-            let Some(first) = first else { break };
+        let mut stopping = false;
+        while !stopping {
+            let Some(first) = requests.blocking_recv() else { break };
             batch.push(first);
             while batch.len() < MAX_BATCH {
                 match requests.try_recv() {
@@ -171,10 +142,26 @@ impl Actor {
             }
             let now = self.clock.now();
             for r in batch.drain(..) {
-                self.handle(now, r);
+                match r {
+                    Request::Stop => stopping = true,
+                    Request::Tick => self.housekeeping(),
+                    r => self.handle(now, r),
+                }
             }
             self.publish(now);
             self.acknowledge();
+        }
+    }
+
+    /// A task that sends [`Request::Tick`] every `period` until the channel closes.
+    pub async fn ticker(requests: mpsc::Sender<Request>, period: Duration) {
+        let mut i = tokio::time::interval(period);
+        i.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
+        loop {
+            i.tick().await;
+            if requests.send(Request::Tick).await.is_err() {
+                return;
+            }
         }
     }
 
@@ -260,6 +247,7 @@ impl Actor {
             Request::GetState { reply } => {
                 let _ = reply.send(self.snapshot(now));
             }
+            Request::Tick | Request::Stop => unreachable!("handled by run"),
         }
     }
 

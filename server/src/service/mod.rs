@@ -46,7 +46,9 @@ pub struct RunningCoordinator {
     stopping: tokio::sync::watch::Sender<bool>,
     shutdown: Option<oneshot::Sender<()>>,
     server: JoinHandle<Result<(), tonic::transport::Error>>,
-    actor: JoinHandle<()>,
+    requests: mpsc::Sender<actor::Request>,
+    actor: Option<std::thread::JoinHandle<()>>,
+    ticker: Option<JoinHandle<()>>,
     sink: Option<std::thread::JoinHandle<()>>,
 }
 
@@ -72,7 +74,13 @@ impl RunningCoordinator {
                 Ok(Ok(()))
             }
         };
-        let _ = self.actor.await;
+        if let Some(t) = self.ticker.take() {
+            t.abort();
+        }
+        let _ = self.requests.send(actor::Request::Stop).await;
+        if let Some(actor) = self.actor.take() {
+            let _ = tokio::task::spawn_blocking(move || actor.join()).await;
+        }
         if let Some(sink) = self.sink.take() {
             let _ = tokio::task::spawn_blocking(move || sink.join()).await;
         }
@@ -121,10 +129,19 @@ pub async fn start(
     };
     let (stopping, stop_rx) = tokio::sync::watch::channel(false);
     let link = robot_link::RobotLinkService::new(&config, requests.clone(), clock.clone(), stop_rx.clone());
-    let monitoring = monitoring::MonitoringService::new(requests, estimates.clone(), stop_rx.clone());
+    let monitoring = monitoring::MonitoringService::new(requests.clone(), estimates.clone(), stop_rx.clone());
+    let ticker = match config.liveness.tick_ms {
+        0 => None,
+        ms => {
+            Some(tokio::spawn(actor::Actor::ticker(requests.clone(), std::time::Duration::from_millis(ms))))
+        }
+    };
     let actor =
         actor::Actor::new(Coordinator::new(config), clock, estimates.clone(), sink_tx, metrics.clone());
-    let actor = tokio::spawn(actor.run(requests_rx, stop_rx.clone()));
+    let actor = std::thread::Builder::new()
+        .name("coordinator".into())
+        .spawn(move || actor.run(requests_rx))
+        .map_err(|source| ServerError::Io { path: "<coordinator thread>".into(), source })?;
     let (health_reporter, health) = tonic_health::server::health_reporter();
     health_reporter.set_serving::<RobotLinkServer<robot_link::RobotLinkService>>().await;
     health_reporter.set_serving::<MonitoringServer<monitoring::MonitoringService>>().await;
@@ -146,7 +163,9 @@ pub async fn start(
         stopping,
         shutdown: Some(shutdown_tx),
         server,
-        actor,
+        requests,
+        actor: Some(actor),
+        ticker,
         sink,
     })
 }

@@ -23,7 +23,7 @@ pub use lm::RobustLoss;
 
 use crate::ray::Ray;
 use crate::stats::chi2_quantile;
-use crate::uncertainty::{GeometryQuality, Sensor, angle_between_deg, assess, condition_number};
+use crate::uncertainty::{GeometryQuality, angle_between_deg, assess, condition_number};
 
 /// Settings of [`triangulate`].
 #[derive(Clone, Debug, PartialEq, Deserialize)]
@@ -216,6 +216,14 @@ impl Triangulation {
     }
 }
 
+/// Whether some pair of rays is at least `angle_deg` from parallel: O(N) in the
+/// usual case (a pair with the first ray), O(N²) only when all rays are close to it.
+fn some_pair_apart(rays: &[Ray], angle_deg: f64) -> bool {
+    let cos_max = angle_deg.to_radians().cos();
+    let d0 = rays[0].direction;
+    rays[1..].iter().any(|r| d0.dot(&r.direction) <= cos_max) || max_ray_angle_deg(rays) >= angle_deg
+}
+
 /// Largest angle between the directions of any two rays (degrees).
 fn max_ray_angle_deg(rays: &[Ray]) -> f64 {
     let mut best: f64 = 0.0;
@@ -254,7 +262,7 @@ pub fn triangulate(rays: &[Ray], config: &TriangulationConfig) -> Triangulation 
         let (point, chi2) = pair::weighted_pair_point(&rays[0], &rays[1], &cp);
         (Method::RayPair, point, Some(cp.miss_m), chi2)
     } else {
-        if max_ray_angle_deg(rays) < config.min_ray_angle_deg {
+        if !some_pair_apart(rays, config.min_ray_angle_deg) {
             return Triangulation::Degenerate(Degeneracy::NearParallel {
                 ray_angle_deg: max_ray_angle_deg(rays),
             });
@@ -278,10 +286,12 @@ pub fn triangulate(rays: &[Ray], config: &TriangulationConfig) -> Triangulation 
     if let Some(d) = behind(rays, &point, config.min_range_m) {
         return Triangulation::Degenerate(d);
     }
-    let sensors: Vec<Sensor> = rays.iter().map(Sensor::from).collect();
-    let quality = assess(&sensors, &point);
-    let directions: Vec<_> = rays.iter().map(|r| r.direction).collect();
-    let condition_number = condition_number(&directions);
+    let quality = assess(rays, &point);
+    let condition_number = if n == 2 {
+        condition_number(&[rays[0].direction, rays[1].direction])
+    } else {
+        condition_number(&rays.iter().map(|r| r.direction).collect::<Vec<_>>())
+    };
     let dof = 2 * n - 3;
     let gate = gate(rays, &point, &quality, condition_number, chi2, dof, config);
     Triangulation::Solved(Solution {
