@@ -5,11 +5,13 @@
 //!   sensor and diffuse noise, moving sources and arrays.
 //! - [`kinematics`]: differential-drive robots, waypoint trajectories, a navigator.
 //! - [`slam_noise`]: the pose error a SLAM system adds (noise and slow drift).
+//! - [`report`]: what a run records, and its CSV/JSON reports and plots.
 //! - [`error`]: the crate's error enum, [`SimError`].
 
 pub mod acoustics;
 pub mod error;
 pub mod kinematics;
+pub mod report;
 pub mod slam_noise;
 
 pub use error::SimError;

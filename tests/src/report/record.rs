@@ -1,0 +1,94 @@
+//! What a simulation or replay run records, for reports and plots.
+//!
+//! The runner fills a [`RunRecord`]; [`super::write_reports`] turns it into
+//! `timeline.csv`, `theta_bins.csv`, `summary.json` and the plots.
+
+use nalgebra::Point3;
+use serde::Serialize;
+
+/// One published estimate of the coordinator, with the truth at its stamp.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct TimelineRow {
+    /// Time since the start of the run (s), from the estimate's stamp.
+    pub t_s: f64,
+    /// True distance from each robot's array centre to the source (m), in robot order.
+    /// Empty when no truth is known (replay without a truth trajectory).
+    pub distances_m: Vec<f64>,
+    /// θ as the coordinator published it (degrees): for two robots, the angle at the
+    /// source between them; for more, the best pair.
+    pub theta_deg: f64,
+    /// θ at the true source between the true array positions (degrees), when truth is known.
+    pub true_theta_deg: Option<f64>,
+    /// GDOP as published (infinite when the geometry gave none).
+    pub gdop: f64,
+    /// Published position (map frame, m): the coordinator's best estimate.
+    pub estimate: Option<Point3<f64>>,
+    /// The instantaneous triangulation published beside it (the paper's method), when
+    /// the best estimate is a filtered one.
+    pub triangulation: Option<Point3<f64>>,
+    /// Whether the coordinator marked the estimate trusted.
+    pub trusted: bool,
+    /// How the best estimate was obtained (`ray_pair`, `levenberg_marquardt`, `kalman_filter`, …).
+    pub method: String,
+    /// Robots whose rays contributed.
+    pub robots: Vec<String>,
+    /// True source position at the estimate's stamp (map frame, m), when known.
+    pub truth: Option<Point3<f64>>,
+}
+
+impl TimelineRow {
+    /// Root square error ‖estimate − truth‖ (m), when both exist.
+    pub fn rse_m(&self) -> Option<f64> {
+        Some((self.estimate? - self.truth?).norm())
+    }
+
+    /// RSE of the triangulation beside a filtered estimate (m).
+    pub fn triangulation_rse_m(&self) -> Option<f64> {
+        Some((self.triangulation? - self.truth?).norm())
+    }
+}
+
+/// A robot's path during the run.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct RobotPath {
+    /// Robot id.
+    pub id: String,
+    /// True base positions over time: (t_s, x_m, y_m, yaw_rad).
+    pub samples: Vec<(f64, f64, f64, f64)>,
+    /// Goals the robot was commanded to, (t_s when issued, x_m, y_m).
+    pub goals: Vec<(f64, f64, f64)>,
+}
+
+/// The room as drawn on the top-down map.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct RoomOutline {
+    /// Floor polygon (map frame, m), counter-clockwise.
+    pub floor: Vec<[f64; 2]>,
+    /// Obstacle polygons.
+    pub obstacles: Vec<Vec<[f64; 2]>>,
+}
+
+/// Everything a run recorded.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct RunRecord {
+    /// Scenario name (or "replay").
+    pub name: String,
+    /// Simulated (or replayed) duration (s).
+    pub duration_s: f64,
+    /// Whether active positioning was on.
+    pub active_positioning: bool,
+    /// The acceptable θ band (degrees).
+    pub theta_band_deg: (f64, f64),
+    /// One row per published estimate, in time order.
+    pub rows: Vec<TimelineRow>,
+    /// Robot ids, in the order of `TimelineRow::distances_m`.
+    pub robot_ids: Vec<String>,
+    /// Robot paths (empty in replay without poses).
+    pub robots: Vec<RobotPath>,
+    /// True source path: (t_s, position), empty when unknown.
+    pub source_path: Vec<(f64, Point3<f64>)>,
+    /// Room outline for the map, when known.
+    pub room: Option<RoomOutline>,
+    /// Seed of the run (simulation only).
+    pub seed: Option<u64>,
+}
