@@ -4,10 +4,9 @@
 //! `timeline.csv`, `theta_bins.csv`, `summary.json` and the plots.
 
 use nalgebra::Point3;
-use serde::Serialize;
 
 /// One published estimate of the coordinator, with the truth at its stamp.
-#[derive(Clone, Debug, PartialEq, Serialize)]
+#[derive(Clone, Debug, PartialEq)]
 pub struct TimelineRow {
     /// Time since the start of the run (s), from the estimate's stamp.
     pub t_s: f64,
@@ -49,7 +48,7 @@ impl TimelineRow {
 }
 
 /// A robot's path during the run.
-#[derive(Clone, Debug, PartialEq, Serialize)]
+#[derive(Clone, Debug, PartialEq)]
 pub struct RobotPath {
     /// Robot id.
     pub id: String,
@@ -60,7 +59,7 @@ pub struct RobotPath {
 }
 
 /// The room as drawn on the top-down map.
-#[derive(Clone, Debug, PartialEq, Serialize)]
+#[derive(Clone, Debug, PartialEq)]
 pub struct RoomOutline {
     /// Floor polygon (map frame, m), counter-clockwise.
     pub floor: Vec<[f64; 2]>,
@@ -69,7 +68,7 @@ pub struct RoomOutline {
 }
 
 /// Everything a run recorded.
-#[derive(Clone, Debug, PartialEq, Serialize)]
+#[derive(Clone, Debug, PartialEq)]
 pub struct RunRecord {
     /// Scenario name (or "replay").
     pub name: String,
