@@ -9,7 +9,7 @@
 //! base_from_array * 0`), so the origin should be the array's acoustic centre.
 //! The built-in presets put it at the microphones' centroid.
 //!
-//! Arrays come from a built-in preset ([`presets`]) or a TOML file ([`file`]);
+//! Arrays come from a built-in preset ([`presets`]) or a TOML file ([`mod@file`]);
 //! [`ArrayGeometry::load`] takes either.
 
 pub mod file;

@@ -29,6 +29,7 @@
 //! reverberation: reflections bias DoAs consistently for a static geometry,
 //! which no single-array innovation can reveal.
 
+pub mod config;
 pub mod sphere_kf;
 
 use nalgebra::{Unit, Vector3};
@@ -36,6 +37,7 @@ use nalgebra::{Unit, Vector3};
 use crate::error::AgentError;
 use crate::srp::PotentialSource;
 use crate::srp::diffuse::DiffuseMap;
+pub use config::TrackerConfig;
 use sphere_kf::SphereKf;
 
 /// How coherent the localizer's peaks are on noise alone (PHAT coherence).
@@ -63,82 +65,6 @@ pub struct TrackedDirection {
     pub angular_sigma_rad: f64,
     /// Whether the track passed confirmation (tentative tracks are `false`).
     pub confirmed: bool,
-}
-
-/// Tracker settings.
-#[derive(Clone, Debug, PartialEq, serde::Deserialize)]
-#[serde(deny_unknown_fields, default)]
-pub struct TrackerConfig {
-    /// Lowest PHAT coherence of a potential that may start a track.
-    pub birth_min_coherence: f64,
-    /// Margin above the array's diffuse-noise coherence floor for births.
-    pub diffuse_margin: f64,
-    /// Further margin for births, in standard deviations of the coherence of
-    /// noise at one direction (`1/√(2·pairs·bins)`, large for few microphones).
-    pub noise_sigmas: f64,
-    /// Frames over which a birth candidate collects its hits.
-    pub birth_window_frames: u32,
-    /// Hits a candidate needs within its window to become a track.
-    pub birth_min_hits: u32,
-    /// Largest angle between consecutive hits of a candidate, degrees.
-    pub birth_gate_deg: f64,
-    /// Associated frames after birth needed to confirm a track.
-    pub confirm_hits: u32,
-    /// Frames after birth within which a tentative track must confirm.
-    pub confirm_window_frames: u32,
-    /// Lowest coherence of a potential that may update an existing track.
-    pub update_min_coherence: f64,
-    /// Association gate, squared Mahalanobis distance (2 dof; 13.8 ≈ 99.9 %).
-    pub gate_chi2: f64,
-    /// Association gate never narrower than this, degrees.
-    pub min_gate_deg: f64,
-    /// White angular-acceleration noise, rad²/s³ per axis.
-    pub acceleration_noise: f64,
-    /// Measurement σ per axis before a track has learnt its own, degrees.
-    pub measurement_sigma_deg: f64,
-    /// Floor of the learnt measurement σ, degrees.
-    pub min_measurement_sigma_deg: f64,
-    /// Floor of the reported σ, degrees.
-    pub min_sigma_deg: f64,
-    /// Variance inflation of each measurement for the correlation between
-    /// overlapping frames (1 = none: with 50 % overlap the reported σ is
-    /// already slightly conservative, see the tracking tests).
-    pub overlap_inflation: f64,
-    /// Time constant of the activity, seconds.
-    pub activity_time_constant_s: f64,
-    /// A track without detection for this long dies, seconds.
-    pub max_coast_s: f64,
-    /// Two tracks closer than this merge (the younger dies), degrees.
-    pub merge_deg: f64,
-    /// Most tracks at once.
-    pub max_tracks: usize,
-}
-
-impl Default for TrackerConfig {
-    fn default() -> Self {
-        TrackerConfig {
-            birth_min_coherence: 0.15,
-            diffuse_margin: 0.1,
-            noise_sigmas: 4.0,
-            birth_window_frames: 10,
-            birth_min_hits: 7,
-            birth_gate_deg: 6.0,
-            confirm_hits: 5,
-            confirm_window_frames: 12,
-            update_min_coherence: 0.08,
-            gate_chi2: 13.8,
-            min_gate_deg: 3.0,
-            acceleration_noise: 0.05,
-            measurement_sigma_deg: 2.0,
-            min_measurement_sigma_deg: 0.02,
-            min_sigma_deg: 0.02,
-            overlap_inflation: 1.0,
-            activity_time_constant_s: 0.15,
-            max_coast_s: 0.6,
-            merge_deg: 5.0,
-            max_tracks: 8,
-        }
-    }
 }
 
 #[derive(Clone, Debug)]

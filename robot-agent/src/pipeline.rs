@@ -209,6 +209,45 @@ mod tests {
     fn assert_send<T: Send>() {}
 
     #[test]
+    fn config_reads_from_toml_and_rejects_unknown_keys() {
+        let text = r#"
+            sample_rate_hz = 16000
+            frame_len = 512
+            window = "sqrt-hann"
+            [srp]
+            search = "exhaustive"
+            max_sources = 3
+            region = { axis = [0.0, 0.0, 1.0], max_angle_deg = 180.0 }
+            [tracker]
+            birth_gate_deg = 8.0
+        "#;
+        let c: PipelineConfig = toml::from_str(text).unwrap();
+        assert_eq!(c.frame_len, 512);
+        assert_eq!(c.hop_len, 128, "defaults fill the rest");
+        assert_eq!(c.window, Window::SqrtHann);
+        assert_eq!(c.srp.search, crate::srp::SearchMode::Exhaustive);
+        assert_eq!(c.srp.max_sources, 3);
+        assert_eq!(c.tracker.birth_gate_deg, 8.0);
+        assert!(
+            toml::from_str::<PipelineConfig>(
+                "[srp]
+max_source = 3
+"
+            )
+            .is_err()
+        );
+        assert!(
+            toml::from_str::<PipelineConfig>(
+                "hop = 64
+"
+            )
+            .is_err()
+        );
+        let array = ArrayGeometry::load("respeaker-4").unwrap();
+        assert!(Pipeline::new(&array, &c).is_ok());
+    }
+
+    #[test]
     fn pipeline_is_send_and_stamps_mid_frame() {
         assert_send::<Pipeline>();
         let array = ArrayGeometry::load("respeaker-4").unwrap();

@@ -3,15 +3,22 @@
 //!
 //! Per frame ([`Srp::process`]):
 //! 1. PHAT-whiten each channel's spectrum on the band and compute the
-//!    GCC-PHAT of every microphone pair by inverse real FFT ([`phat`]).
+//!    GCC-PHAT of every microphone pair by inverse FFT, two pairs per complex
+//!    FFT, keeping only the lags a direction can produce ([`phat`]).
 //! 2. Find the best direction on the fine icosphere by a coarse → fine branch
 //!    and bound over max-filtered correlations, as ODAS's SRP-PHAT-HSDA does
 //!    ([`search`]); or, for reference, scan every fine point.
-//! 3. Refine it off the grid by Newton ascent of the exact beamformer power
-//!    ([`refine`]), so the accuracy does not depend on the grid spacing.
+//! 3. Start from a quadratic fit around the best grid point and refine off
+//!    the grid by Newton ascent of the exact beamformer power ([`refine`]),
+//!    so the accuracy does not depend on the grid spacing (nor on an
+//!    interpolation of the correlations).
 //! 4. Up to `max_sources` potential sources: after each peak, zero every
 //!    pair's correlation around the peak's TDOA (ODAS's suppression) and
-//!    search again, away from the peaks already found.
+//!    search again, away from the peaks already found; a later peak is
+//!    refined and scored after projecting the earlier sources out of the
+//!    whitened spectra, so a strong source's sidelobes do not come back as
+//!    coherent ghosts. Peaks too weak to matter (grid coherence below
+//!    `refine_min_coherence`) are reported unrefined.
 //!
 //! Each potential's `energy` is the *PHAT coherence* at its direction: the
 //! steered response normalized per pair and bin, 1 for a noise-free plane
@@ -154,6 +161,9 @@ pub struct Srp {
     mics: Vec<crate::array::Microphone>,
     gains: Vec<f32>,
     found: Vec<Vector3<f64>>,
+    /// Whether `found[j]` was refined, and how many of `found` were projected out.
+    found_refined: Vec<bool>,
+    projected: usize,
     max_step_rad: f64,
     diffuse: diffuse::DiffuseMap,
 }
@@ -250,6 +260,8 @@ impl Srp {
             mics: array.microphones.clone(),
             gains: vec![1.0; m],
             found: Vec::with_capacity(config.max_sources),
+            found_refined: Vec::with_capacity(config.max_sources),
+            projected: 0,
             max_step_rad: 0.75 * fine_spacing,
             diffuse,
         })
@@ -310,6 +322,8 @@ impl Srp {
     pub fn process(&mut self, spectra: &[Complex<f32>], out: &mut Vec<PotentialSource>) {
         out.clear();
         self.found.clear();
+        self.found_refined.clear();
+        self.projected = 0;
         self.cc.whiten(spectra);
         if self.cc.phat_energy.iter().all(|&e| e == 0.0) {
             return; // silence: no direction
@@ -336,6 +350,16 @@ impl Srp {
             let grid_coherence = value as f64 / self.pair_weight(&grid_dir);
             let refine = self.config.refine && grid_coherence >= self.config.refine_min_coherence;
             let (direction, energy) = if refine {
+                // Later peaks are refined and scored on what the earlier
+                // (refined) sources leave: project those out first.
+                for j in self.projected..self.found.len() {
+                    if self.found_refined[j] {
+                        let d = Unit::new_unchecked(self.found[j]);
+                        self.set_gains(&d);
+                        self.refiner.project_out(&mut self.cc, &d, &self.gains);
+                    }
+                }
+                self.projected = self.found.len();
                 let start = Unit::new_normalize(self.tables.quadratic_peak(&self.cc.lin, f));
                 self.refine_peak(start)
             } else {
@@ -343,13 +367,17 @@ impl Srp {
             };
             out.push(PotentialSource { direction, energy });
             self.found.push(direction.into_inner());
+            self.found_refined.push(refine);
             if out.len() < self.config.max_sources {
                 self.suppress(&direction);
-                if refine {
-                    // Later peaks are refined and scored on what this source leaves.
-                    self.refiner.project_out(&mut self.cc, &direction, &self.gains);
-                }
             }
+        }
+    }
+
+    /// Directivity gains of the microphones toward `d`.
+    fn set_gains(&mut self, d: &Unit<Vector3<f64>>) {
+        for (g, m) in self.gains.iter_mut().zip(&self.mics) {
+            *g = m.gain(d) as f32;
         }
     }
 
@@ -377,9 +405,7 @@ impl Srp {
     }
 
     fn refine_peak(&mut self, start: Unit<Vector3<f64>>) -> (Unit<Vector3<f64>>, f64) {
-        for (g, m) in self.gains.iter_mut().zip(&self.mics) {
-            *g = m.gain(&start) as f32;
-        }
+        self.set_gains(&start);
         let iterations = self.config.refine_iterations;
         let (d, local) = match self.planar_normal {
             Some(n) => {

@@ -12,7 +12,7 @@
 //! Tangent coordinates `(u, v)` at `d` with basis `(e₁, e₂)`:
 //! `d(u, v) ≈ d(1 − (u²+v²)/2) + u e₁ + v e₂`, radians.
 //!
-//! The inner loops run over bins in chunks of [`LANES`] with fixed-size
+//! The inner loops run over bins in chunks of `LANES` (8) with fixed-size
 //! arrays so that they vectorize.
 
 use nalgebra::{Unit, Vector3};

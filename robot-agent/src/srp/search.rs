@@ -78,8 +78,9 @@ impl Exclusion<'_> {
 
 impl SearchTables {
     /// Builds the tables. `pair_axes[p]` maps a direction to pair `p`'s TDOA
-    /// in samples; `lag_radius(max_tdoa, max_window)` must return the `R` the
-    /// correlator will keep.
+    /// in samples (`τₚ(d) = pair_axes[p]·d`), `pair_mics[p]` are its
+    /// microphones; only fine points within half a fine spacing of `region`
+    /// are kept. The correlator must keep lags up to [`Self::lag_radius`].
     pub fn new(
         array: &ArrayGeometry,
         pair_axes: &[Vector3<f64>],
