@@ -36,9 +36,41 @@ pub enum SimError {
         /// Given length.
         got: usize,
     },
+    /// A scenario file (or built-in scenario) is malformed or invalid.
+    #[error("{path}: {field}: {message}")]
+    Scenario {
+        /// The file, or `<built-in NAME>`.
+        path: String,
+        /// Dotted key, e.g. `robots[1].start`.
+        field: String,
+        /// What is wrong.
+        message: String,
+    },
+    /// A file could not be read or written.
+    #[error("{path}: {message}")]
+    Io {
+        /// The file or directory.
+        path: String,
+        /// The underlying error, as text.
+        message: String,
+    },
+    /// The robot agent library failed (audio, poses, link, pipeline).
+    #[error("agent: {0}")]
+    Agent(String),
+    /// The coordinator failed to start or stop.
+    #[error("coordinator: {0}")]
+    Coordinator(String),
+    /// A replay's inputs do not fit together (lengths, time ranges, gaps).
+    #[error("replay: {0}")]
+    Replay(String),
 }
 
 impl SimError {
+    /// An I/O error about `path`.
+    pub fn io(path: impl std::fmt::Display, e: impl std::fmt::Display) -> Self {
+        SimError::Io { path: path.to_string(), message: e.to_string() }
+    }
+
     /// Shorthand for [`SimError::InvalidConfig`].
     pub fn invalid(field: &'static str, reason: impl Into<String>) -> Self {
         SimError::InvalidConfig { field, reason: reason.into() }
