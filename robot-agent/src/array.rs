@@ -171,6 +171,12 @@ impl ArrayGeometry {
         file::load_file(path)
     }
 
+    /// The same array mounted at `base_from_array` on the robot.
+    pub fn with_base_from_array(mut self, base_from_array: Isometry3<f64>) -> Self {
+        self.base_from_array = base_from_array;
+        self
+    }
+
     /// Number of microphones (= audio channels).
     pub fn channels(&self) -> usize {
         self.microphones.len()

@@ -139,14 +139,6 @@ fn circle(name: &str, radius_m: f64, azimuths_deg: &[f64], centre: bool) -> Arra
     .expect("built-in preset is valid")
 }
 
-impl ArrayGeometry {
-    /// The same array mounted at `base_from_array` on the robot.
-    pub fn with_base_from_array(mut self, base_from_array: Isometry3<f64>) -> Self {
-        self.base_from_array = base_from_array;
-        self
-    }
-}
-
 /// Every built-in array, in [`NAMES`] order.
 pub fn all() -> Vec<ArrayGeometry> {
     NAMES.iter().map(|n| by_name(n).expect("listed preset exists")).collect()
