@@ -7,7 +7,10 @@ use std::path::{Path, PathBuf};
 
 use serde::Deserialize;
 
+use crate::coordinator::positioning::check_band;
 use crate::error::ServerError;
+use crate::planner::{ConfigError as PlannerConfigError, PlannerConfig};
+use crate::tracking::{TrackerConfig, TrackerConfigError};
 use crate::triangulation::{RobustLoss, TriangulationConfig};
 
 /// The coordinator's configuration.
@@ -30,6 +33,54 @@ pub struct CoordinatorConfig {
     pub output: OutputConfig,
     /// Robot authentication.
     pub auth: AuthConfig,
+    /// Source tracking (`[tracking]`): the Kalman filter fed with every robot's DoA.
+    pub tracking: TrackerConfig,
+    /// Active positioning (`[active_positioning]`): on/off, θ band, commands.
+    pub active_positioning: ActivePositioningConfig,
+    /// The placement planner (`[planner]`), room and obstacles included. Its θ
+    /// band comes from `[active_positioning]`.
+    pub planner: PlannerConfig,
+}
+
+/// Active positioning: whether the coordinator commands the robots, the θ band
+/// it keeps them in, and how commands are issued.
+#[derive(Clone, Debug, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct ActivePositioningConfig {
+    /// Send reposition commands. Default **false**: moving robots is something
+    /// an operator opts into, after describing the room and its obstacles in
+    /// `[planner.free_space]` (without a room the planner knows no walls). It can
+    /// be switched at run time with `Monitoring.SetActivePositioning`.
+    pub enabled: bool,
+    /// Lower edge of the acceptable angle θ at the source between robots
+    /// (degrees, in [0, 180)). Default 40 (the paper's band).
+    pub theta_min_deg: f64,
+    /// Upper edge (degrees, in (0, 180]). Default 140.
+    pub theta_max_deg: f64,
+    /// A command is void this long after it is issued (s): its `deadline_ns`. Default 30.
+    pub command_deadline_s: f64,
+    /// Shortest time between two planner runs (ms); the planner runs on
+    /// estimates, at most this often. Default 100.
+    pub evaluate_period_ms: u64,
+    /// A goal a robot refused or failed to reach is not sent to it again for
+    /// this long (s), unless it differs by more than `retry_distance_m`. Default 10.
+    pub retry_after_s: f64,
+    /// Goals closer than this to a refused one count as the same goal (m). Default 0.3.
+    pub retry_distance_m: f64,
+}
+
+impl Default for ActivePositioningConfig {
+    fn default() -> Self {
+        ActivePositioningConfig {
+            enabled: false,
+            theta_min_deg: 40.0,
+            theta_max_deg: 140.0,
+            command_deadline_s: 30.0,
+            evaluate_period_ms: 100,
+            retry_after_s: 10.0,
+            retry_distance_m: 0.3,
+        }
+    }
 }
 
 /// Liveness settings.
@@ -106,6 +157,9 @@ impl Default for CoordinatorConfig {
             triangulation: TriangulationConfig::default(),
             output: OutputConfig::default(),
             auth: AuthConfig::default(),
+            tracking: TrackerConfig::default(),
+            active_positioning: ActivePositioningConfig::default(),
+            planner: PlannerConfig::default(),
         }
     }
 }
@@ -223,8 +277,63 @@ impl CoordinatorConfig {
         if self.auth.required && self.auth.tokens.is_empty() {
             return err("auth.required", "true, but auth.tokens is empty: no robot could connect".into());
         }
+        self.tracking.validate().map_err(|e| tracker_error(path, &e))?;
+        self.validate_positioning(path)?;
         Ok(())
     }
+
+    fn validate_positioning(&self, path: &Path) -> Result<(), ServerError> {
+        let err = |field: &str, message: String| Err(config_error(path, field, &message));
+        let ap = &self.active_positioning;
+        let default_planner = PlannerConfig::default();
+        for (field, set, default, band) in [
+            ("theta_min_deg", self.planner.theta_min_deg, default_planner.theta_min_deg, ap.theta_min_deg),
+            ("theta_max_deg", self.planner.theta_max_deg, default_planner.theta_max_deg, ap.theta_max_deg),
+        ] {
+            if set != default && set != band {
+                return err(
+                    &format!("planner.{field}"),
+                    format!("the θ band is set in [active_positioning] ({field} = {band}); remove it here"),
+                );
+            }
+        }
+        if let Err(e) =
+            check_band(ap.theta_min_deg, ap.theta_max_deg, self.planner.theta_hysteresis_deg, false)
+        {
+            return err(&format!("active_positioning.{}", e.field), e.problem.to_string());
+        }
+        if !(ap.command_deadline_s.is_finite() && ap.command_deadline_s > 0.0) {
+            return err(
+                "active_positioning.command_deadline_s",
+                format!("{} must be > 0", ap.command_deadline_s),
+            );
+        }
+        for (field, v) in [("retry_after_s", ap.retry_after_s), ("retry_distance_m", ap.retry_distance_m)] {
+            if !(v.is_finite() && v >= 0.0) {
+                return err(&format!("active_positioning.{field}"), format!("{v} must be finite and ≥ 0"));
+            }
+        }
+        self.planner_config().validate().map_err(|e| planner_error(path, &e))
+    }
+
+    /// The planner's settings with the θ band of `[active_positioning]`.
+    pub fn planner_config(&self) -> PlannerConfig {
+        PlannerConfig {
+            theta_min_deg: self.active_positioning.theta_min_deg,
+            theta_max_deg: self.active_positioning.theta_max_deg,
+            ..self.planner.clone()
+        }
+    }
+}
+
+/// A `[tracking]` setting out of range, as a config error naming `tracking.<field>`.
+pub fn tracker_error(path: &Path, e: &TrackerConfigError) -> ServerError {
+    config_error(path, &format!("tracking.{}", e.field), e.requirement)
+}
+
+/// A `[planner]` setting out of range, as a config error naming `planner.<field>`.
+pub fn planner_error(path: &Path, e: &PlannerConfigError) -> ServerError {
+    config_error(path, &format!("planner.{}", e.field), &e.problem)
 }
 
 fn config_error(path: &Path, field: &str, message: &str) -> ServerError {
@@ -264,5 +373,41 @@ mod tests {
         assert!(e.starts_with("c.toml: triangulation.robust_loss: "), "{e}");
         let e = parse("[liveness\n").unwrap_err();
         assert!(e.starts_with("c.toml: (document): "), "{e}");
+    }
+
+    #[test]
+    fn tracking_planner_and_positioning_errors_name_file_and_key() {
+        for (text, prefix) in [
+            ("[tracking]\nlag = 0.3\n", "c.toml: tracking.lag: unknown field `lag`"),
+            ("[tracking]\nlag_s = -1.0\n", "c.toml: tracking.lag_s: "),
+            ("[tracking]\nconfirm_updates = 40\n", "c.toml: tracking.confirm_updates: "),
+            ("[tracking]\nenabled = \"yes\"\n", "c.toml: tracking.enabled: "),
+            ("[planner]\nmax_step = 1.0\n", "c.toml: planner.max_step: unknown field `max_step`"),
+            ("[planner]\nmin_range_m = 9.0\n", "c.toml: planner.min_range_m: "),
+            ("[planner.free_space]\nroom = [[0, 0], [1, 1]]\n", "c.toml: planner.free_space.room: "),
+            ("[planner.sampling]\nmax_sweeps = 0\n", "c.toml: planner.sampling.max_sweeps: "),
+            ("[planner]\ntheta_min_deg = 30.0\n", "c.toml: planner.theta_min_deg: the θ band is set in"),
+            ("[active_positioning]\ntheta_min_deg = 150.0\n", "c.toml: active_positioning.theta_min_deg: "),
+            ("[active_positioning]\ntheta_max_deg = 181.0\n", "c.toml: active_positioning.theta_max_deg: "),
+            (
+                "[active_positioning]\ncommand_deadline_s = 0.0\n",
+                "c.toml: active_positioning.command_deadline_s: ",
+            ),
+            (
+                "[active_positioning]\nenable = true\n",
+                "c.toml: active_positioning.enable: unknown field `enable`",
+            ),
+        ] {
+            let e = parse(text).unwrap_err();
+            assert!(e.starts_with(prefix), "{text:?}: {e}");
+        }
+        let ok = parse(
+            "[tracking]\nenabled = false\n[active_positioning]\nenabled = true\ntheta_min_deg = 30.0\n\
+             [planner]\ntheta_min_deg = 30.0\nmax_step_m = 0.5\n",
+        )
+        .unwrap();
+        assert!(!ok.tracking.enabled && ok.active_positioning.enabled);
+        assert_eq!(ok.planner_config().theta_min_deg, 30.0);
+        assert_eq!(ok.planner_config().theta_max_deg, 140.0);
     }
 }

@@ -59,32 +59,41 @@ pub fn erfc(x: f64) -> f64 {
     if x >= 0.0 { r } else { 2.0 - r }
 }
 
+/// ln(eᵃ + eᵇ) without overflow.
+fn log_add(a: f64, b: f64) -> f64 {
+    let (hi, lo) = if a >= b { (a, b) } else { (b, a) };
+    hi + (lo - hi).exp().ln_1p()
+}
+
 /// Survival function Q(x) = P(χ²_k > x) for integer k ≥ 1, by the closed forms for
-/// even and odd degrees of freedom.
+/// even and odd degrees of freedom. The sums run in the log domain, so that the
+/// terms (up to e^{x/2}) do not overflow at large k.
 pub fn chi2_survival(k: usize, x: f64) -> f64 {
     if x <= 0.0 {
         return 1.0;
     }
     let h = x / 2.0;
     if k.is_multiple_of(2) {
-        let (mut term, mut sum) = (1.0, 1.0);
+        // Q = e^{−h} Σ_{j < k/2} h^j / j!
+        let (mut ln_term, mut ln_sum) = (-h, -h);
         for j in 1..k / 2 {
-            term *= h / j as f64;
-            sum += term;
+            ln_term += (h / j as f64).ln();
+            ln_sum = log_add(ln_sum, ln_term);
         }
-        (-h).exp() * sum
+        ln_sum.exp().min(1.0)
     } else {
-        let mut q = erfc((h).sqrt());
+        let mut q = erfc(h.sqrt());
         if k > 1 {
-            let (mut term, mut sum) = ((2.0 * x / std::f64::consts::PI).sqrt() * (-h).exp(), 0.0);
-            sum += term;
+            // √(2x/π) e^{−h} Σ_{j ≤ (k−3)/2} x^j / (3·5···(2j+1))
+            let mut ln_term = 0.5 * (2.0 * x / std::f64::consts::PI).ln() - h;
+            let mut ln_sum = ln_term;
             for j in 1..=(k - 3) / 2 {
-                term *= x / (2 * j + 1) as f64;
-                sum += term;
+                ln_term += (x / (2 * j + 1) as f64).ln();
+                ln_sum = log_add(ln_sum, ln_term);
             }
-            q += sum;
+            q += ln_sum.exp();
         }
-        q
+        q.min(1.0)
     }
 }
 
@@ -100,18 +109,31 @@ fn chi2_density(k: usize, x: f64) -> f64 {
     ((a - 1.0) * x.ln() - x / 2.0 - a * std::f64::consts::LN_2 - ln_gamma).exp()
 }
 
+/// Above this many degrees of freedom [`chi2_quantile`] is the Wilson–Hilferty
+/// approximation itself (relative error below 2e-6 there, shrinking as k^{-3/2});
+/// below it, Newton's refinement (whose sums cost O(k)) is exact to 1e-10.
+pub const WILSON_HILFERTY_MIN_DOF: usize = 5000;
+
+/// Wilson–Hilferty approximation of the χ² quantile: χ²ₖ/k is close to normal
+/// after a cube root, so x ≈ k (1 − h + z √h)³ with h = 2/(9k) and z the normal quantile.
+pub fn chi2_quantile_wilson_hilferty(dof: usize, p: f64) -> f64 {
+    let kf = dof as f64;
+    let z = normal_quantile(p);
+    let h = 2.0 / (9.0 * kf);
+    (kf * (1.0 - h + z * h.sqrt()).powi(3)).max(0.0)
+}
+
 /// Quantile of the χ² distribution with `dof` degrees of freedom at probability `p`:
-/// closed forms for 1 and 2 dof, Newton's method from the Wilson–Hilferty guess above.
+/// closed forms for 1 and 2 dof, Newton's method from the Wilson–Hilferty guess
+/// up to [`WILSON_HILFERTY_MIN_DOF`], Wilson–Hilferty alone above (finite for any dof).
 pub fn chi2_quantile(dof: usize, p: f64) -> f64 {
     match dof {
         0 => 0.0,
         1 => normal_quantile(0.5 + p / 2.0).powi(2),
         2 => -2.0 * (1.0 - p).ln(),
+        k if k > WILSON_HILFERTY_MIN_DOF => chi2_quantile_wilson_hilferty(k, p),
         k => {
-            let kf = k as f64;
-            let z = normal_quantile(p);
-            let h = 2.0 / (9.0 * kf);
-            let mut x = (kf * (1.0 - h + z * h.sqrt()).powi(3)).max(1e-6);
+            let mut x = chi2_quantile_wilson_hilferty(k, p).max(1e-6);
             for _ in 0..8 {
                 // F(x) − p = (1 − Q) − p; F' = density.
                 let step = ((1.0 - chi2_survival(k, x)) - p) / chi2_density(k, x);
@@ -148,5 +170,38 @@ mod tests {
             assert!((got - q).abs() / q < 2e-3, "dof {dof} p {p}: {got} vs {q}");
         }
         assert!((normal_quantile(0.975) - 1.959964).abs() < 1e-5);
+    }
+
+    #[test]
+    fn large_dof_is_finite_and_accurate() {
+        // References: bisection on the regularized incomplete gamma function
+        // (series / continued fraction in the log domain), to 1e-5.
+        let probabilities = [0.001, 0.025, 0.975, 0.999];
+        for (k, reference) in [
+            (600, [498.622874, 534.01855, 669.769152, 712.771163]),
+            (1000, [867.479083, 914.257154, 1089.530913, 1143.917093]),
+            (1401, [1243.10387, 1299.15852, 1506.6297, 1570.29322]),
+            (5000, [4696.66738, 4805.90473, 5197.88377, 5314.73136]),
+            (5001, [4697.63648, 4806.88513, 5198.90337, 5315.76226]),
+        ] {
+            for (p, q) in probabilities.iter().zip(reference) {
+                let got = chi2_quantile(k, *p);
+                assert!((got - q).abs() / q < 2e-6, "dof {k} p {p}: {got} vs {q}");
+            }
+        }
+        // Far beyond: finite, and mean ± z·√(2k) to first order.
+        for k in [10_000usize, 1_000_000] {
+            for (p, z) in [(0.025, -1.959964), (0.975, 1.959964)] {
+                let q = chi2_quantile(k, p);
+                let kf = k as f64;
+                assert!(q.is_finite(), "dof {k}: {q}");
+                assert!(
+                    (q - (kf + z * (2.0 * kf).sqrt())).abs() < 0.01 * kf.sqrt() + 2.0,
+                    "dof {k} p {p}: {q}"
+                );
+            }
+        }
+        assert!((chi2_survival(3000, 3000.0) - 0.496566).abs() < 1e-5, "no overflow in the survival sums");
+        assert!((chi2_survival(3000, 3200.0) - 0.005617).abs() < 1e-5);
     }
 }

@@ -1,14 +1,20 @@
-//! What the coordinator publishes about a source.
+//! What the coordinator publishes about a source: the instantaneous
+//! triangulation of the aligned rays (the paper's method) and, beside it, the
+//! tracked (filtered) state; and which of the two is the "best" estimate.
 
 use nalgebra::{Matrix3, Point3};
 use soundmap_proto::{RobotId, Stamp};
 
-use crate::triangulation::{Gate, Triangulation};
+use crate::planner::SourceEstimate;
+use crate::stats::chi2_quantile;
+use crate::tracking::{TrackEstimate, TrackState};
+use crate::triangulation::{Degeneracy, Gate, GateReason, Method, Triangulation, TriangulationConfig};
 
 /// One published estimate of a source.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Estimate {
-    /// Coordinator-wide source id.
+    /// Coordinator-wide source id: the id of the track following the source,
+    /// 0 when no live track does (tracking off, not started yet, or lost).
     pub source_id: u64,
     /// Stamp of the newest observation used.
     pub stamp: Stamp,
@@ -16,39 +22,119 @@ pub struct Estimate {
     pub robots: Vec<RobotId>,
     /// The instantaneous triangulation of those rays.
     pub triangulation: Triangulation,
+    /// The track's state predicted to `stamp`, when a track exists (its
+    /// `state` says whether it is tentative, confirmed or lost).
+    pub filtered: Option<TrackEstimate>,
+}
+
+/// Where the best position of an [`Estimate`] comes from.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum BestSource {
+    /// The track: confirmed and trusted.
+    Filter,
+    /// The triangulation (trusted or not: see [`Estimate::trusted`]).
+    Triangulation,
 }
 
 impl Estimate {
+    /// The filtered state is used when its track is confirmed and trusted
+    /// (position RMS within `tracking.trusted_max_rms_m`); otherwise the triangulation.
+    pub fn best_source(&self) -> BestSource {
+        match &self.filtered {
+            Some(f) if f.trusted => BestSource::Filter,
+            _ => BestSource::Triangulation,
+        }
+    }
+
     /// Best position, if any (map frame, m).
     pub fn position(&self) -> Option<Point3<f64>> {
-        self.triangulation.solution().map(|s| s.point)
+        match (self.best_source(), &self.filtered) {
+            (BestSource::Filter, Some(f)) => Some(f.position),
+            _ => self.triangulation.solution().map(|s| s.point),
+        }
     }
 
     /// Covariance of [`Estimate::position`] (m²).
     pub fn covariance(&self) -> Option<Matrix3<f64>> {
-        self.triangulation.solution().and_then(|s| s.quality.covariance)
+        match (self.best_source(), &self.filtered) {
+            (BestSource::Filter, Some(f)) => Some(f.position_covariance()),
+            _ => self.triangulation.solution().and_then(|s| s.quality.covariance),
+        }
     }
 
-    /// Whether the estimate passed its gate.
+    /// Estimator of [`Estimate::position`]: `None` for the filter, else the triangulation's.
+    pub fn triangulation_method(&self) -> Option<Method> {
+        self.triangulation.solution().map(|s| s.method)
+    }
+
+    /// Whether the best estimate can be trusted to its covariance: a trusted
+    /// track, or else a triangulation its gate accepted.
     pub fn trusted(&self) -> bool {
-        matches!(self.triangulation.solution(), Some(s) if s.gate == Gate::Accepted)
+        match self.best_source() {
+            BestSource::Filter => true,
+            BestSource::Triangulation => {
+                matches!(self.triangulation.solution(), Some(s) if s.gate == Gate::Accepted)
+            }
+        }
     }
 
-    /// GDOP (infinite when not available).
+    /// GDOP of the triangulation (infinite when not available).
     pub fn gdop(&self) -> f64 {
         self.triangulation.solution().map_or(f64::INFINITY, |s| s.quality.gdop)
     }
 
-    /// θ at the source (degrees): from the estimate, or between the ray
+    /// θ at the source (degrees): from the triangulation, or between the ray
     /// directions when the rays give no point.
     pub fn theta_deg(&self) -> f64 {
         match &self.triangulation {
             Triangulation::Solved(s) => s.quality.theta_deg,
             Triangulation::Degenerate(d) => match d {
-                crate::triangulation::Degeneracy::NearParallel { ray_angle_deg }
-                | crate::triangulation::Degeneracy::BehindArray { ray_angle_deg, .. } => *ray_angle_deg,
-                crate::triangulation::Degeneracy::TooFewRays { .. } => 0.0,
+                Degeneracy::NearParallel { ray_angle_deg }
+                | Degeneracy::BehindArray { ray_angle_deg, .. } => *ray_angle_deg,
+                Degeneracy::TooFewRays { .. } => 0.0,
             },
+        }
+    }
+
+    /// The source as the planner should see it, or why there is none:
+    /// - the filtered state (with its velocity) when the track is confirmed;
+    /// - else the triangulation when its gate accepted it, *or* rejected it only
+    ///   for its geometry (ill-conditioned or too uncertain) while its rays agree
+    ///   (residual χ² within the gate): that is exactly the bad geometry the
+    ///   planner must fix (the paper's θ ≈ 9°), and its covariance says how
+    ///   vague it is (the planner refuses beyond `planner.max_source_rms_m`);
+    /// - never rays that disagree, a point too far, or no point.
+    pub fn planning_source(&self, triangulation: &TriangulationConfig) -> Result<SourceEstimate, String> {
+        if let Some(f) = self.filtered.as_ref().filter(|f| f.state == TrackState::Confirmed) {
+            return Ok(SourceEstimate {
+                position_in_map: f.position,
+                covariance_m2: f.position_covariance(),
+                velocity_in_map: Some(f.velocity),
+            });
+        }
+        let s = match &self.triangulation {
+            Triangulation::Solved(s) => s,
+            Triangulation::Degenerate(d) => return Err(format!("no source estimate: {d}")),
+        };
+        let usable = match s.gate {
+            Gate::Accepted => true,
+            Gate::Rejected(GateReason::IllConditioned { .. } | GateReason::Uncertain { .. }) => {
+                s.residual_chi2 <= chi2_quantile(s.residual_dof, triangulation.residual_probability)
+            }
+            Gate::Rejected(_) => false,
+        };
+        match (usable, s.quality.covariance) {
+            (true, Some(c)) => {
+                Ok(SourceEstimate { position_in_map: s.point, covariance_m2: c, velocity_in_map: None })
+            }
+            (true, None) => Err("no source estimate: the triangulation has no covariance".into()),
+            (false, _) => Err(format!(
+                "no usable source estimate: triangulation rejected ({})",
+                match s.gate {
+                    Gate::Rejected(r) => r.to_string(),
+                    Gate::Accepted => "accepted".into(),
+                }
+            )),
         }
     }
 }

@@ -1,9 +1,21 @@
 //! The coordinator as a pure state machine: fed `(now, input)`, it returns
 //! outputs. The gRPC service, the simulator and a replay all drive this same
 //! code; none of it opens sockets or reads clocks.
+//!
+//! - [`robots`]: what is known of each robot; [`commands`]: the commands sent
+//!   to it and its reports;
+//! - [`estimate`]: what is published about the source (triangulation and
+//!   filtered state side by side);
+//! - [`tracking`]: the source tracker fed with every robot's dominant DoA;
+//! - [`positioning`]: the operator's settings, the planner and command
+//!   bookkeeping; `reposition` runs a planning cycle on each estimate.
 
+pub mod commands;
 pub mod estimate;
+pub mod positioning;
+mod reposition;
 pub mod robots;
+pub mod tracking;
 
 use std::collections::{BTreeMap, HashMap};
 
@@ -12,13 +24,18 @@ use soundmap_proto::{
     CommandAck, CommandProgress, Hello, Limits, Observation, Problem, RobotId, Stamp, ValidationError,
 };
 
-pub use estimate::Estimate;
+pub use commands::{Outbound, Outgoing, Refusal};
+pub use estimate::{BestSource, Estimate};
+pub use positioning::{PlanKind, PlannerStatus, PositioningSettings, PositioningUpdate};
 pub use robots::{ConnId, Liveness, RobotEntry, StoredObservation};
+pub use tracking::TrackingCounters;
 
 use crate::config::CoordinatorConfig;
 use crate::error::ServerError;
 use crate::ray::Ray;
 use crate::triangulation::triangulate;
+use positioning::Positioning;
+use tracking::Tracking;
 
 /// The coordinator's answer to a valid hello.
 #[derive(Clone, Debug, PartialEq, Eq)]
@@ -67,12 +84,20 @@ pub struct Coordinator {
     last_estimate: Option<Estimate>,
     counters: Counters,
     liveness: BTreeMap<RobotId, Liveness>,
+    tracking: Tracking,
+    positioning: Positioning,
+    /// Messages for robots' streams, sent by the shell before the batch's acknowledgements.
+    outbox: Vec<Outgoing>,
 }
 
 impl Coordinator {
-    /// A coordinator with no robots.
-    pub fn new(config: CoordinatorConfig) -> Self {
-        Coordinator {
+    /// A coordinator with no robots. The configuration is validated first
+    /// (errors name the key, with `<config>` as the file).
+    pub fn new(config: CoordinatorConfig) -> Result<Self, ServerError> {
+        config.validate(std::path::Path::new("<config>"))?;
+        Ok(Coordinator {
+            tracking: Tracking::new(&config.tracking),
+            positioning: Positioning::new(&config)?,
             config,
             robots: BTreeMap::new(),
             connections: HashMap::new(),
@@ -81,7 +106,8 @@ impl Coordinator {
             last_estimate: None,
             counters: Counters::default(),
             liveness: BTreeMap::new(),
-        }
+            outbox: Vec::new(),
+        })
     }
 
     /// Its configuration.
@@ -138,7 +164,8 @@ impl Coordinator {
                 true
             }
             None => {
-                self.robots.insert(id.clone(), RobotEntry::new(hello, conn, now));
+                let index = self.robots.len() as u32;
+                self.robots.insert(id.clone(), RobotEntry::new(hello, index, conn, now));
                 false
             }
         };
@@ -241,10 +268,16 @@ impl Coordinator {
         entry.last_stamp = Some(obs.stamp);
         entry.last_pose = Some(obs.map_from_base);
         entry.accepted += 1;
-        let has_rays = !rays.is_empty();
-        entry.remember(StoredObservation { stamp: obs.stamp, rays, received: now }, history_ns);
+        let stored = StoredObservation { stamp: obs.stamp, rays, received: now };
+        let dominant = stored.dominant().copied();
+        if let Some(ray) = &dominant {
+            entry.last_sigma_rad = Some(ray.sigma_rad);
+        }
+        let index = entry.index;
+        entry.remember(stored, history_ns);
         self.counters.observations += 1;
-        if has_rays {
+        if let Some(ray) = dominant {
+            self.tracking.push(obs.stamp, index, ray);
             self.pending = Some(self.pending.map_or(obs.stamp, |p| p.max(obs.stamp)));
         }
         Ok(())
@@ -254,18 +287,7 @@ impl Coordinator {
     pub fn command_ack(&mut self, now: Stamp, conn: ConnId, ack: &CommandAck) -> Result<(), ServerError> {
         let entry = self.entry_mut(conn, "command_ack")?;
         entry.last_seen = now;
-        match &mut entry.command {
-            Some((cmd, state)) if cmd.command_id == ack.command_id => {
-                if !ack.accepted {
-                    *state = Some(soundmap_proto::CommandState::Failed);
-                }
-                Ok(())
-            }
-            _ => Err(ServerError::UnknownCommand {
-                field: "command_ack.command_id",
-                command_id: ack.command_id,
-            }),
-        }
+        commands::acknowledge(entry, now, ack)
     }
 
     /// A robot reports progress on a command.
@@ -277,20 +299,14 @@ impl Coordinator {
     ) -> Result<(), ServerError> {
         let entry = self.entry_mut(conn, "command_progress")?;
         entry.last_seen = now;
-        match &mut entry.command {
-            Some((cmd, state)) if cmd.command_id == p.command_id => {
-                *state = Some(p.state);
-                Ok(())
-            }
-            _ => Err(ServerError::UnknownCommand {
-                field: "command_progress.command_id",
-                command_id: p.command_id,
-            }),
-        }
+        commands::progress(entry, now, p)
     }
 
-    /// Housekeeping: returns the robots whose liveness changed since the last tick.
+    /// Housekeeping: applies queued DoAs to the tracker, checks its lifecycle,
+    /// and returns the robots whose liveness changed since the last tick.
     pub fn tick(&mut self, now: Stamp) -> Vec<LivenessChange> {
+        self.tracking.flush();
+        self.tracking.maintain(now);
         let stale_after_ns = self.stale_after_ns();
         let mut changes = Vec::new();
         for (id, e) in &self.robots {
@@ -303,38 +319,79 @@ impl Coordinator {
         changes
     }
 
-    /// Triangulates the dominant source from the rays aligned with the newest
-    /// observation not yet covered, if any arrived since the last estimate.
-    /// Only live robots contribute, each with its observation nearest in time
-    /// (within the alignment window) and that observation's most active DoA.
+    /// The estimate for the observations that arrived since the last one, if
+    /// any did: the triangulation of the rays aligned with the newest
+    /// observation (only live robots, each with its observation nearest in time
+    /// within the alignment window and that observation's most active DoA; at
+    /// least two robots), and the track's state at that stamp beside it.
+    ///
+    /// On the way it starts a track from the triangulation when none is live
+    /// and the triangulation is trusted, applies the queued DoAs to the tracker,
+    /// checks the track's lifecycle at `now`, and, when active positioning is on
+    /// and due, runs a planning cycle whose commands are queued for
+    /// [`Coordinator::take_outgoing`].
     pub fn estimate(&mut self, now: Stamp) -> Option<Estimate> {
-        let t = self.pending.take()?;
+        let aligned = self.pending.take().and_then(|t| self.triangulate_at(now, t));
+        if let Some((e, newest)) = &aligned {
+            self.tracking.start_if_needed(*newest, &e.triangulation);
+        }
+        self.tracking.flush();
+        self.tracking.maintain(now);
+        let (mut estimate, _) = aligned?;
+        estimate.filtered = self.tracking.estimate_at(estimate.stamp);
+        estimate.source_id = self.tracking.live_track_id().unwrap_or(0);
+        self.counters.estimates += 1;
+        self.last_estimate = Some(estimate.clone());
+        if self.positioning.due(now) {
+            self.reposition(now, &estimate);
+        }
+        Some(estimate)
+    }
+
+    /// Triangulates the rays aligned with `t`; also returns the newest stamp among them.
+    fn triangulate_at(&mut self, now: Stamp, t: Stamp) -> Option<(Estimate, Stamp)> {
         let window_ns = self.config.alignment.window_ms as i64 * 1_000_000;
         let stale_after_ns = self.stale_after_ns();
         let mut robots = Vec::new();
         let mut rays = Vec::new();
+        let mut newest = Stamp::ZERO;
         for (id, e) in &self.robots {
             if e.liveness(now, stale_after_ns) != Liveness::Live {
                 continue;
             }
-            if let Some(ray) = e.nearest(t, window_ns).and_then(StoredObservation::dominant) {
+            let Some(o) = e.nearest(t, window_ns) else { continue };
+            if let Some(ray) = o.dominant() {
                 robots.push(id.clone());
                 rays.push(*ray);
+                newest = newest.max(o.stamp);
             }
         }
         if rays.len() < 2 {
             self.counters.unaligned += 1;
             return None;
         }
-        let estimate = Estimate {
-            source_id: 1,
-            stamp: t,
-            robots,
-            triangulation: triangulate(&rays, &self.config.triangulation),
-        };
-        self.counters.estimates += 1;
-        self.last_estimate = Some(estimate.clone());
-        Some(estimate)
+        let triangulation = triangulate(&rays, &self.config.triangulation);
+        Some((Estimate { source_id: 0, stamp: t, robots, triangulation, filtered: None }, newest))
+    }
+
+    /// Messages queued for robots' streams (commands, cancellations), oldest first.
+    pub fn take_outgoing(&mut self) -> Vec<Outgoing> {
+        std::mem::take(&mut self.outbox)
+    }
+
+    /// Active positioning settings.
+    pub fn positioning(&self) -> PositioningSettings {
+        self.positioning.settings()
+    }
+
+    /// The planner's latest decision, if it ran.
+    pub fn planner_status(&self) -> Option<&PlannerStatus> {
+        self.positioning.status()
+    }
+
+    /// What became of the DoAs given to the tracker; `None` when tracking is off.
+    pub fn tracking_counters(&self) -> Option<TrackingCounters> {
+        self.tracking.enabled().then(|| self.tracking.counters())
     }
 
     /// The latest estimate.

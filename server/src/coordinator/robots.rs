@@ -4,8 +4,9 @@
 use std::collections::VecDeque;
 
 use nalgebra::Isometry3;
-use soundmap_proto::{CommandState, Hello, RepositionCommand, Stamp};
+use soundmap_proto::{Hello, Stamp};
 
+use super::commands::CommandLog;
 use crate::ray::Ray;
 
 /// Identifies one stream (connection) of a robot.
@@ -46,6 +47,8 @@ impl StoredObservation {
 pub struct RobotEntry {
     /// Its hello (identity, array).
     pub hello: Hello,
+    /// Coordinator-wide index, in order of first connection (the tracker's robot number).
+    pub index: u32,
     /// The stream it is connected on, if any.
     pub conn: Option<ConnId>,
     /// Coordinator clock when last heard from.
@@ -56,30 +59,34 @@ pub struct RobotEntry {
     pub last_sequence: Option<u64>,
     /// Pose at the last accepted observation.
     pub last_pose: Option<Isometry3<f64>>,
+    /// Angular σ of the dominant ray of its last observation with DoAs (rad).
+    pub last_sigma_rad: Option<f64>,
     /// Recent observations, oldest first, stamps non-decreasing.
     pub history: VecDeque<StoredObservation>,
     /// Observations accepted / rejected since start.
     pub accepted: u64,
     /// Observations rejected since start.
     pub rejected: u64,
-    /// The latest command sent and the robot's last report on it.
-    pub command: Option<(RepositionCommand, Option<CommandState>)>,
+    /// Reposition commands sent to it and its reports on them.
+    pub commands: CommandLog,
 }
 
 impl RobotEntry {
-    /// A robot that just said hello on `conn`.
-    pub fn new(hello: Hello, conn: ConnId, now: Stamp) -> Self {
+    /// A robot that just said hello on `conn`; `index` numbers it.
+    pub fn new(hello: Hello, index: u32, conn: ConnId, now: Stamp) -> Self {
         RobotEntry {
             hello,
+            index,
             conn: Some(conn),
             last_seen: now,
             last_stamp: None,
             last_sequence: None,
             last_pose: None,
+            last_sigma_rad: None,
             history: VecDeque::new(),
             accepted: 0,
             rejected: 0,
-            command: None,
+            commands: CommandLog::default(),
         }
     }
 

@@ -208,11 +208,11 @@ impl PlannerConfig {
                 return err(field, format!("must be finite and ≥ 0, is {v}"));
             }
         }
-        if !(self.theta_min_deg.is_finite() && self.theta_min_deg > 0.0) {
-            return err("theta_min_deg", format!("must be in (0°, 180°), is {}", self.theta_min_deg));
+        if !(self.theta_min_deg.is_finite() && (0.0..180.0).contains(&self.theta_min_deg)) {
+            return err("theta_min_deg", format!("must be in [0°, 180°), is {}", self.theta_min_deg));
         }
-        if !(self.theta_max_deg.is_finite() && self.theta_max_deg < 180.0) {
-            return err("theta_max_deg", format!("must be in (0°, 180°), is {}", self.theta_max_deg));
+        if !(self.theta_max_deg.is_finite() && self.theta_max_deg > 0.0 && self.theta_max_deg <= 180.0) {
+            return err("theta_max_deg", format!("must be in (0°, 180°], is {}", self.theta_max_deg));
         }
         if self.theta_min_deg >= self.theta_max_deg {
             return err(

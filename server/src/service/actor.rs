@@ -12,15 +12,19 @@ use std::time::{Duration, Instant};
 use soundmap_proto::{CommandAck, CommandProgress, Hello, Observation, RobotId, Stamp, wire};
 use tokio::sync::{broadcast, mpsc, oneshot};
 
-use super::convert::{estimate_to_wire, robot_to_wire};
+use super::convert::{estimate_to_wire, planner_status_to_wire, positioning_to_wire, robot_to_wire};
 use super::metrics::Metrics;
 use super::status::to_stream_error;
 use crate::clock::Clock;
-use crate::coordinator::{ConnId, Coordinator, Welcome};
+use crate::coordinator::{
+    ConnId, Coordinator, Outbound, PlanKind, PositioningSettings, PositioningUpdate, Welcome,
+};
 use crate::error::ServerError;
 
 /// Most requests handled before an estimate is computed.
 const MAX_BATCH: usize = 1024;
+/// A planner decision that repeats the previous one is logged at most this often.
+const PLANNER_LOG_PERIOD: Duration = Duration::from_secs(10);
 
 /// What handlers ask of the coordinator task.
 #[derive(Debug)]
@@ -83,6 +87,13 @@ pub enum Request {
         /// Where the answer goes.
         reply: oneshot::Sender<wire::CoordinatorState>,
     },
+    /// The operator changes active positioning.
+    SetActivePositioning {
+        /// Fields to change.
+        update: PositioningUpdate,
+        /// Where the new settings (or the error) go.
+        reply: oneshot::Sender<Result<PositioningSettings, ServerError>>,
+    },
     /// Housekeeping (liveness) is due.
     Tick,
     /// Finish the requests already queued, then stop.
@@ -106,6 +117,8 @@ pub struct Actor {
     metrics: Arc<Metrics>,
     /// Receipt times of observations waiting for an estimate.
     receipts: Vec<Instant>,
+    /// The planner decision last logged: (kind, reason key, when).
+    planner_logged: Option<(PlanKind, &'static str, Instant)>,
 }
 
 impl std::fmt::Debug for Actor {
@@ -123,7 +136,16 @@ impl Actor {
         sink: Option<mpsc::UnboundedSender<Arc<wire::SourceEstimate>>>,
         metrics: Arc<Metrics>,
     ) -> Self {
-        Actor { coordinator, clock, streams: HashMap::new(), estimates, sink, metrics, receipts: Vec::new() }
+        Actor {
+            coordinator,
+            clock,
+            streams: HashMap::new(),
+            estimates,
+            sink,
+            metrics,
+            receipts: Vec::new(),
+            planner_logged: None,
+        }
     }
 
     /// Runs on the calling thread until every request sender is gone or a
@@ -149,6 +171,7 @@ impl Actor {
                 }
             }
             self.publish(now);
+            self.dispatch();
             self.acknowledge();
         }
     }
@@ -247,6 +270,18 @@ impl Actor {
             Request::GetState { reply } => {
                 let _ = reply.send(self.snapshot(now));
             }
+            Request::SetActivePositioning { update, reply } => {
+                let result = self.coordinator.set_active_positioning(now, &update);
+                if let Ok(s) = &result {
+                    tracing::info!(
+                        enabled = s.enabled,
+                        theta_min_deg = s.theta_min_deg,
+                        theta_max_deg = s.theta_max_deg,
+                        "active positioning set"
+                    );
+                }
+                let _ = reply.send(result);
+            }
             Request::Tick | Request::Stop => unreachable!("handled by run"),
         }
     }
@@ -276,6 +311,52 @@ impl Actor {
         }
     }
 
+    /// Sends the commands and cancellations of this batch (before its acknowledgements).
+    fn dispatch(&mut self) {
+        for out in self.coordinator.take_outgoing() {
+            let msg = match out.message {
+                Outbound::Reposition(c) => {
+                    tracing::info!(
+                        robot = %out.robot_id,
+                        command_id = c.command_id,
+                        x = c.goal_map_from_base.translation.vector.x,
+                        y = c.goal_map_from_base.translation.vector.y,
+                        "reposition: {}",
+                        c.detail
+                    );
+                    wire::coordinator_message::Msg::Reposition(c.to_wire())
+                }
+                Outbound::Cancel { command_id, reason } => {
+                    tracing::info!(robot = %out.robot_id, command_id, "cancel: {reason}");
+                    wire::coordinator_message::Msg::Cancel(wire::CancelCommand { command_id, reason })
+                }
+            };
+            self.send(out.conn, wire::CoordinatorMessage { msg: Some(msg) });
+        }
+        self.log_planner();
+    }
+
+    /// Logs holds and infeasibilities when they change, and a repeated one at
+    /// most every [`PLANNER_LOG_PERIOD`].
+    fn log_planner(&mut self) {
+        let Some(s) = self.coordinator.planner_status() else { return };
+        if s.kind == PlanKind::Planned {
+            self.planner_logged = Some((s.kind, s.key, Instant::now()));
+            return;
+        }
+        let repeated = self
+            .planner_logged
+            .is_some_and(|(k, key, at)| k == s.kind && key == s.key && at.elapsed() < PLANNER_LOG_PERIOD);
+        if repeated {
+            return;
+        }
+        match s.kind {
+            PlanKind::Infeasible => tracing::warn!(reason = s.key, "planner: infeasible: {}", s.detail),
+            _ => tracing::info!(reason = s.key, "planner: hold: {}", s.detail),
+        }
+        self.planner_logged = Some((s.kind, s.key, Instant::now()));
+    }
+
     fn acknowledge(&mut self) {
         // Observations that led to no estimate (e.g. a lone robot) are not latency samples.
         self.receipts.clear();
@@ -301,7 +382,8 @@ impl Actor {
                 .map(|(id, e)| robot_to_wire(e, self.coordinator.liveness_of(id, now).expect("known robot")))
                 .collect(),
             sources: self.coordinator.last_estimate().map(estimate_to_wire).into_iter().collect(),
-            active_positioning: None,
+            active_positioning: Some(positioning_to_wire(&self.coordinator.positioning())),
+            planner: self.coordinator.planner_status().map(planner_status_to_wire),
         }
     }
 }

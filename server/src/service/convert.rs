@@ -4,7 +4,10 @@ use nalgebra::{Matrix3, Point3};
 use soundmap_proto::geometry::covariance3_to_wire;
 use soundmap_proto::{pose_to_wire, vec3_to_wire, wire};
 
-use crate::coordinator::{Estimate, Liveness, RobotEntry};
+use crate::coordinator::{
+    BestSource, Estimate, Liveness, PlanKind, PlannerStatus, PositioningSettings, RobotEntry,
+};
+use crate::tracking::{TrackEstimate, TrackState};
 use crate::triangulation::{Gate, Method, Triangulation};
 
 fn method(m: Method) -> wire::EstimateMethod {
@@ -66,23 +69,75 @@ pub fn triangulation_to_wire(t: &Triangulation, robots: &[String]) -> wire::Tria
     }
 }
 
-/// The wire form of an estimate.
+/// The wire form of a track's state.
+pub fn filtered_to_wire(f: &TrackEstimate) -> wire::FilteredState {
+    wire::FilteredState {
+        position_in_map_m: Some(point(&f.position)),
+        velocity_in_map_m_s: Some(vec3_to_wire(&f.velocity)),
+        position_covariance: Some(covariance3_to_wire(&f.position_covariance())),
+        state: match f.state {
+            TrackState::Tentative => wire::TrackState::Tentative,
+            TrackState::Confirmed => wire::TrackState::Confirmed,
+            TrackState::Lost(_) => wire::TrackState::Lost,
+        } as i32,
+        last_nis: f.last_nis.map_or(0.0, |v| finite_or(v, 0.0)),
+        trusted: f.trusted,
+        position_rms_m: finite_or(f.position_rms_m, 0.0),
+        mean_nis: f.mean_nis.map_or(0.0, |v| finite_or(v, 0.0)),
+        doas_applied: f.counts.applied,
+        doas_gated: f.counts.gated,
+    }
+}
+
+/// The wire form of an estimate: the best position (filtered when the track
+/// is trusted, else the triangulation's), the triangulation, the filtered state.
 pub fn estimate_to_wire(e: &Estimate) -> wire::SourceEstimate {
     let robots: Vec<String> = e.robots.iter().map(|r| r.to_string()).collect();
     let tri = triangulation_to_wire(&e.triangulation, &robots);
+    let method = match e.best_source() {
+        BestSource::Filter => wire::EstimateMethod::KalmanFilter as i32,
+        BestSource::Triangulation => tri.method,
+    };
     wire::SourceEstimate {
         source_id: e.source_id,
         stamp_ns: e.stamp.as_ns(),
-        position_in_map_m: tri.position_in_map_m,
-        covariance: tri.covariance.clone(),
+        position_in_map_m: e.position().as_ref().map(point),
+        covariance: e.covariance().as_ref().map(covariance3_to_wire),
         gdop: tri.gdop,
         theta_deg: e.theta_deg(),
         robots,
-        method: tri.method,
+        method,
         trusted: e.trusted(),
         triangulation: Some(tri),
-        filtered: None,
+        filtered: e.filtered.as_ref().map(filtered_to_wire),
         lagged: 0,
+    }
+}
+
+/// The wire form of the active positioning settings.
+pub fn positioning_to_wire(s: &PositioningSettings) -> wire::ActivePositioning {
+    wire::ActivePositioning {
+        enabled: s.enabled,
+        theta_min_deg: s.theta_min_deg,
+        theta_max_deg: s.theta_max_deg,
+    }
+}
+
+/// The wire form of the planner's latest decision.
+pub fn planner_status_to_wire(s: &PlannerStatus) -> wire::PlannerStatus {
+    wire::PlannerStatus {
+        decided_ns: s.decided.as_ns(),
+        outcome: match s.kind {
+            PlanKind::Planned => wire::PlannerOutcome::Planned,
+            PlanKind::Hold => wire::PlannerOutcome::Hold,
+            PlanKind::Infeasible => wire::PlannerOutcome::Infeasible,
+        } as i32,
+        detail: s.detail.clone(),
+        last_planned_ns: s.last_planned.map_or(0, |t| t.as_ns()),
+        commands_issued: s.commands_issued,
+        predicted_theta_deg: s.predicted_theta_deg.map_or(0.0, |v| finite_or(v, 0.0)),
+        predicted_gdop: s.predicted_gdop.map_or(0.0, |v| finite_or(v, 0.0)),
+        used_fallback: s.used_fallback,
     }
 }
 
@@ -102,9 +157,10 @@ pub fn robot_to_wire(e: &RobotEntry, liveness: Liveness) -> wire::RobotState {
         software_version: e.hello.software_version.clone(),
         observations_accepted: e.accepted,
         observations_rejected: e.rejected,
-        active_command: e.command.as_ref().map(|(c, _)| c.to_wire()),
+        active_command: e.commands.current.as_ref().map(|(c, _)| c.to_wire()),
         active_command_state: e
-            .command
+            .commands
+            .current
             .as_ref()
             .and_then(|(_, s)| *s)
             .map_or(wire::CommandState::Unspecified, |s| s.to_wire()) as i32,

@@ -115,6 +115,8 @@ pub async fn start(
     clock: Arc<dyn Clock>,
     listener: TcpListener,
 ) -> Result<RunningCoordinator, ServerError> {
+    // Validated before anything starts.
+    let coordinator = Coordinator::new(config.clone())?;
     let local_addr =
         listener.local_addr().map_err(|source| ServerError::Io { path: "<listener>".into(), source })?;
     let (requests, requests_rx) = mpsc::channel(REQUEST_CAPACITY);
@@ -136,8 +138,7 @@ pub async fn start(
             Some(tokio::spawn(actor::Actor::ticker(requests.clone(), std::time::Duration::from_millis(ms))))
         }
     };
-    let actor =
-        actor::Actor::new(Coordinator::new(config), clock, estimates.clone(), sink_tx, metrics.clone());
+    let actor = actor::Actor::new(coordinator, clock, estimates.clone(), sink_tx, metrics.clone());
     let actor = std::thread::Builder::new()
         .name("coordinator".into())
         .spawn(move || actor.run(requests_rx))

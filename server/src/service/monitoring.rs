@@ -11,7 +11,9 @@ use tokio::sync::{broadcast, mpsc, oneshot};
 use tonic::{Request, Response, Status};
 
 use super::actor;
+use super::convert::positioning_to_wire;
 use super::status::to_status;
+use crate::coordinator::PositioningUpdate;
 use crate::error::ServerError;
 
 /// The monitoring service.
@@ -83,8 +85,21 @@ impl Monitoring for MonitoringService {
 
     async fn set_active_positioning(
         &self,
-        _: Request<wire::SetActivePositioningRequest>,
+        request: Request<wire::SetActivePositioningRequest>,
     ) -> Result<Response<wire::ActivePositioning>, Status> {
-        Err(Status::unimplemented("active positioning is not available in this version of the coordinator"))
+        let r = request.into_inner();
+        let update = PositioningUpdate {
+            enabled: r.enabled,
+            theta_min_deg: r.theta_min_deg,
+            theta_max_deg: r.theta_max_deg,
+        };
+        let (reply, answer) = oneshot::channel();
+        self.requests
+            .send(actor::Request::SetActivePositioning { update, reply })
+            .await
+            .map_err(|_| to_status(&ServerError::ShuttingDown))?;
+        let settings =
+            answer.await.map_err(|_| to_status(&ServerError::ShuttingDown))?.map_err(|e| to_status(&e))?;
+        Ok(Response::new(positioning_to_wire(&settings)))
     }
 }

@@ -11,6 +11,9 @@ use crate::ray::MIN_RANGE_M;
 #[derive(Clone, Debug, PartialEq, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct TrackerConfig {
+    /// Whether the coordinator runs the tracker (`[tracking] enabled`). Default
+    /// true. [`SourceTracker`](super::SourceTracker) itself ignores it.
+    pub enabled: bool,
     /// Horizontal (x, y) white-noise acceleration PSD q̃ (m²/s³). Default 0.5:
     /// σ_a ≈ 1 m/s² over τ ≈ 0.5 s, a walking person (theory §4.1). Use ~1e-3
     /// for a seated or static talker.
@@ -64,6 +67,7 @@ pub struct TrackerConfig {
 impl Default for TrackerConfig {
     fn default() -> Self {
         TrackerConfig {
+            enabled: true,
             accel_psd_horizontal_m2_per_s3: 0.5,
             accel_psd_vertical_m2_per_s3: 0.01,
             initial_velocity_sigma_horizontal_m_per_s: 1.0,

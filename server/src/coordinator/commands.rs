@@ -1,0 +1,156 @@
+//! Reposition commands as the coordinator tracks them per robot: the latest
+//! one and the robot's reports on it, the ids of earlier ones (whose late
+//! reports are accepted and ignored), and the last goal the robot refused or
+//! failed to reach (not re-sent blindly).
+
+use std::collections::VecDeque;
+
+use nalgebra::Isometry3;
+use soundmap_proto::{CommandAck, CommandProgress, CommandState, RepositionCommand, RobotId, Stamp};
+
+use super::robots::{ConnId, RobotEntry};
+use crate::error::ServerError;
+
+/// Earlier command ids remembered per robot.
+const RECENT_COMMANDS: usize = 16;
+
+/// Something the coordinator sends a robot besides acknowledgements.
+#[derive(Clone, Debug, PartialEq)]
+pub enum Outbound {
+    /// Drive to a goal (replaces the robot's current command).
+    Reposition(RepositionCommand),
+    /// Stop executing a command.
+    Cancel {
+        /// The command.
+        command_id: u64,
+        /// Why, for operators.
+        reason: String,
+    },
+}
+
+/// A message for a robot's stream, queued by the coordinator for the shell to send.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Outgoing {
+    /// The robot's current stream.
+    pub conn: ConnId,
+    /// The robot.
+    pub robot_id: RobotId,
+    /// What to send.
+    pub message: Outbound,
+}
+
+/// A goal a robot refused (ack `accepted = false`) or reported `FAILED`.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Refusal {
+    /// The command.
+    pub command_id: u64,
+    /// Its goal pose (map frame).
+    pub goal: Isometry3<f64>,
+    /// Coordinator clock when the robot said so.
+    pub at: Stamp,
+    /// The robot's words.
+    pub reason: String,
+}
+
+/// Commands of one robot.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct CommandLog {
+    /// The latest command sent and the robot's last report on it (`None`:
+    /// not yet acknowledged).
+    pub current: Option<(RepositionCommand, Option<CommandState>)>,
+    /// Ids of earlier commands, newest last.
+    recent: VecDeque<u64>,
+    /// The last goal refused or failed.
+    pub refused: Option<Refusal>,
+}
+
+impl CommandLog {
+    /// Records a command as sent; it replaces the current one.
+    pub fn issue(&mut self, command: RepositionCommand) {
+        if let Some((old, _)) = self.current.take() {
+            self.recent.push_back(old.command_id);
+            if self.recent.len() > RECENT_COMMANDS {
+                self.recent.pop_front();
+            }
+        }
+        self.current = Some((command, None));
+    }
+
+    /// The goal of the current command while the robot is (or will be) driving
+    /// to it: not refused, not finished, deadline not passed.
+    pub fn active_goal(&self, now: Stamp) -> Option<Isometry3<f64>> {
+        match &self.current {
+            Some((c, None | Some(CommandState::Executing))) if now <= c.deadline => {
+                Some(c.goal_map_from_base)
+            }
+            _ => None,
+        }
+    }
+
+    /// The current command if the robot may still be executing it (for cancellation).
+    pub fn cancellable(&self) -> Option<u64> {
+        match &self.current {
+            Some((c, None | Some(CommandState::Executing))) => Some(c.command_id),
+            _ => None,
+        }
+    }
+
+    fn known(&self, command_id: u64) -> bool {
+        self.recent.contains(&command_id)
+    }
+
+    fn refuse(&mut self, now: Stamp, reason: String) {
+        if let Some((c, state)) = &mut self.current {
+            *state = Some(CommandState::Failed);
+            self.refused =
+                Some(Refusal { command_id: c.command_id, goal: c.goal_map_from_base, at: now, reason });
+        }
+    }
+
+    /// Marks the current command canceled by the coordinator.
+    pub fn cancel(&mut self) {
+        if let Some((_, state)) = &mut self.current {
+            *state = Some(CommandState::Canceled);
+        }
+    }
+}
+
+/// The robot answers a command: accepted (now executing) or refused (remembered).
+/// Answers to earlier commands are accepted and change nothing.
+pub fn acknowledge(entry: &mut RobotEntry, now: Stamp, ack: &CommandAck) -> Result<(), ServerError> {
+    let log = &mut entry.commands;
+    let current = log.current.as_ref().is_some_and(|(c, _)| c.command_id == ack.command_id);
+    if current {
+        if !ack.accepted {
+            let reason = if ack.reason.is_empty() { "refused".into() } else { ack.reason.clone() };
+            log.refuse(now, reason);
+        } else if let Some((_, state @ None)) = &mut log.current {
+            *state = Some(CommandState::Executing);
+        }
+        return Ok(());
+    }
+    if log.known(ack.command_id) {
+        return Ok(());
+    }
+    Err(ServerError::UnknownCommand { field: "command_ack.command_id", command_id: ack.command_id })
+}
+
+/// The robot reports progress. Reports on earlier commands (e.g. `CANCELED`
+/// when a newer one replaced them) are accepted and change nothing.
+pub fn progress(entry: &mut RobotEntry, now: Stamp, p: &CommandProgress) -> Result<(), ServerError> {
+    let log = &mut entry.commands;
+    let current = log.current.as_ref().is_some_and(|(c, _)| c.command_id == p.command_id);
+    if current {
+        if p.state == CommandState::Failed {
+            let reason = if p.detail.is_empty() { "failed".into() } else { p.detail.clone() };
+            log.refuse(now, reason);
+        } else if let Some((_, state)) = &mut log.current {
+            *state = Some(p.state);
+        }
+        return Ok(());
+    }
+    if log.known(p.command_id) {
+        return Ok(());
+    }
+    Err(ServerError::UnknownCommand { field: "command_progress.command_id", command_id: p.command_id })
+}

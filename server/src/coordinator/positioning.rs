@@ -1,0 +1,307 @@
+//! Active positioning inside the coordinator: the operator's switch and θ
+//! band, the [`Planner`], and the bookkeeping that turns its goals into
+//! reposition commands (ids, deadlines, operator text) and its holds and
+//! infeasibilities into a status.
+
+use soundmap_proto::{Problem, RepositionCommand, RepositionReason, Stamp, ValidationError};
+
+use crate::config::{ActivePositioningConfig, CoordinatorConfig, planner_error};
+use crate::error::ServerError;
+use crate::planner::{Goal, HoldReason, InfeasibleReason, PlanOutcome, Planner, PlannerConfig, PlannerInput};
+
+/// Longest operator text of a command (the contract's text limit).
+const MAX_DETAIL_CHARS: usize = 256;
+
+/// The operator-facing settings.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct PositioningSettings {
+    /// Whether reposition commands are sent.
+    pub enabled: bool,
+    /// Acceptable θ band (degrees).
+    pub theta_min_deg: f64,
+    /// See `theta_min_deg`.
+    pub theta_max_deg: f64,
+}
+
+/// A change of the settings; `None` keeps the current value.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct PositioningUpdate {
+    /// Switch on or off.
+    pub enabled: Option<bool>,
+    /// New lower edge (degrees).
+    pub theta_min_deg: Option<f64>,
+    /// New upper edge (degrees).
+    pub theta_max_deg: Option<f64>,
+}
+
+/// Checks a θ band: both edges finite, 0 ≤ min < max ≤ 180, and wider than
+/// twice the planner's θ hysteresis (else no θ could end a correction).
+/// Errors name `theta_min_deg` or `theta_max_deg`; relations between the two
+/// name `theta_max_deg` when `blame_max`, else `theta_min_deg`.
+pub fn check_band(min: f64, max: f64, hysteresis_deg: f64, blame_max: bool) -> Result<(), ValidationError> {
+    for (field, v, ok, range) in [
+        ("theta_min_deg", min, (0.0..180.0).contains(&min), "[0, 180)"),
+        ("theta_max_deg", max, max > 0.0 && max <= 180.0, "(0, 180]"),
+    ] {
+        if !v.is_finite() {
+            return Err(ValidationError::new(field, Problem::NonFinite(v)));
+        }
+        if !ok {
+            return Err(ValidationError::new(field, Problem::OutOfRange { value: v, range }));
+        }
+    }
+    let field = if blame_max { "theta_max_deg" } else { "theta_min_deg" };
+    if min >= max {
+        return Err(ValidationError::new(
+            field,
+            Problem::Invalid(format!(
+                "band {min}°–{max}° is empty: theta_min_deg must be below theta_max_deg"
+            )),
+        ));
+    }
+    if max - min <= 2.0 * hysteresis_deg {
+        return Err(ValidationError::new(
+            field,
+            Problem::Invalid(format!(
+                "band {min}°–{max}° is not wider than twice planner.theta_hysteresis_deg ({hysteresis_deg}°)"
+            )),
+        ));
+    }
+    Ok(())
+}
+
+/// Kind of the planner's latest decision.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum PlanKind {
+    /// Goals were sent.
+    Planned,
+    /// The robots were left as they are.
+    Hold,
+    /// No placement meets the constraints.
+    Infeasible,
+}
+
+/// The planner's latest decision, for monitoring (waits for the planning
+/// period are not decisions and leave it unchanged).
+#[derive(Clone, Debug, PartialEq)]
+pub struct PlannerStatus {
+    /// Coordinator clock of the decision.
+    pub decided: Stamp,
+    /// What it was.
+    pub kind: PlanKind,
+    /// Short stable name of the reason (`geometry_good`, `no_source`, …), for logs.
+    pub key: &'static str,
+    /// The reason in words.
+    pub detail: String,
+    /// When goals were last sent.
+    pub last_planned: Option<Stamp>,
+    /// Commands sent since start.
+    pub commands_issued: u64,
+    /// Of the last plan: best pairwise θ (degrees) and GDOP once its goals are reached.
+    pub predicted_theta_deg: Option<f64>,
+    /// See `predicted_theta_deg`.
+    pub predicted_gdop: Option<f64>,
+    /// The last plan came from the sampling fallback.
+    pub used_fallback: bool,
+}
+
+/// Active positioning state: settings, planner, command ids and status.
+#[derive(Debug)]
+pub struct Positioning {
+    settings: PositioningSettings,
+    config: ActivePositioningConfig,
+    /// The `[planner]` section; the band of `settings` replaces its own.
+    planner_config: PlannerConfig,
+    planner: Planner,
+    next_command_id: u64,
+    last_run: Option<Stamp>,
+    status: Option<PlannerStatus>,
+}
+
+impl Positioning {
+    /// From a coordinator configuration (errors name `planner.<field>`).
+    pub fn new(config: &CoordinatorConfig) -> Result<Self, ServerError> {
+        let ap = &config.active_positioning;
+        let planner_config = config.planner_config();
+        let planner =
+            Planner::new(planner_config.clone()).map_err(|e| planner_error("<config>".as_ref(), &e))?;
+        Ok(Positioning {
+            settings: PositioningSettings {
+                enabled: ap.enabled,
+                theta_min_deg: ap.theta_min_deg,
+                theta_max_deg: ap.theta_max_deg,
+            },
+            config: ap.clone(),
+            planner_config,
+            planner,
+            next_command_id: 1,
+            last_run: None,
+            status: None,
+        })
+    }
+
+    /// Current settings.
+    pub fn settings(&self) -> PositioningSettings {
+        self.settings
+    }
+
+    /// The planner's latest decision.
+    pub fn status(&self) -> Option<&PlannerStatus> {
+        self.status.as_ref()
+    }
+
+    /// Its command settings.
+    pub fn config(&self) -> &ActivePositioningConfig {
+        &self.config
+    }
+
+    /// Applies an update after checking it; a new band reaches the planner
+    /// (whose memory of earlier plans is then reset). Errors name the field.
+    pub fn update(&mut self, u: &PositioningUpdate) -> Result<PositioningSettings, ServerError> {
+        let min = u.theta_min_deg.unwrap_or(self.settings.theta_min_deg);
+        let max = u.theta_max_deg.unwrap_or(self.settings.theta_max_deg);
+        let blame_max = u.theta_min_deg.is_none();
+        check_band(min, max, self.planner_config.theta_hysteresis_deg, blame_max)?;
+        if (min, max) != (self.settings.theta_min_deg, self.settings.theta_max_deg) {
+            let cfg = PlannerConfig { theta_min_deg: min, theta_max_deg: max, ..self.planner_config.clone() };
+            self.planner = Planner::new(cfg.clone()).map_err(|e| {
+                let field = if blame_max { "theta_max_deg" } else { "theta_min_deg" };
+                ValidationError::new(field, Problem::Invalid(e.to_string()))
+            })?;
+            self.planner_config = cfg;
+            self.settings.theta_min_deg = min;
+            self.settings.theta_max_deg = max;
+        }
+        if let Some(enabled) = u.enabled {
+            self.settings.enabled = enabled;
+        }
+        Ok(self.settings)
+    }
+
+    /// Whether the planner should run at `now`: enabled, and its evaluation period elapsed.
+    pub fn due(&self, now: Stamp) -> bool {
+        let period_ns = self.config.evaluate_period_ms as i64 * 1_000_000;
+        self.settings.enabled && self.last_run.is_none_or(|t| now - t >= period_ns || now < t)
+    }
+
+    /// Records that no source estimate can be planned around.
+    pub fn no_source(&mut self, now: Stamp, why: String) {
+        self.last_run = Some(now);
+        self.record(now, PlanKind::Hold, "no_source", why);
+    }
+
+    /// One planning cycle. `NotDue` waits are returned but not recorded.
+    pub fn plan(&mut self, now: Stamp, input: &PlannerInput) -> PlanOutcome {
+        self.last_run = Some(now);
+        let outcome = self.planner.plan(now, input);
+        match &outcome {
+            PlanOutcome::Planned(goals) => {
+                let first = goals.first();
+                let detail =
+                    format!("{} goal(s): {}", goals.len(), first.map_or("", |g| reason_text(g.reason)));
+                self.record(now, PlanKind::Planned, "planned", detail);
+                if let Some(s) = self.status.as_mut() {
+                    s.last_planned = Some(now);
+                    s.predicted_theta_deg = first.map(|g| g.predicted_theta_deg);
+                    s.predicted_gdop = first.map(|g| g.predicted_gdop);
+                    s.used_fallback = goals.iter().any(|g| g.used_fallback);
+                }
+            }
+            PlanOutcome::Hold(HoldReason::NotDue { .. }) => {}
+            PlanOutcome::Hold(h) => self.record(now, PlanKind::Hold, hold_key(h), h.to_string()),
+            PlanOutcome::Infeasible(r) => {
+                self.record(now, PlanKind::Infeasible, infeasible_key(r), r.to_string())
+            }
+        }
+        outcome
+    }
+
+    /// Appends to the detail of the latest decision (e.g. goals not re-sent).
+    pub fn annotate(&mut self, text: &str) {
+        if let Some(s) = self.status.as_mut() {
+            s.detail = format!("{}; {text}", s.detail);
+        }
+    }
+
+    /// The command for `goal` issued at `now` with the next id. `theta_deg` is
+    /// the current θ, for the operator text.
+    pub fn command(&mut self, now: Stamp, goal: &Goal, theta_deg: f64) -> RepositionCommand {
+        let id = self.next_command_id;
+        self.next_command_id += 1;
+        if let Some(s) = self.status.as_mut() {
+            s.commands_issued += 1;
+        }
+        let s = &self.settings;
+        let mut detail = format!(
+            "{}: θ {theta_deg:.1}° (band {}–{}°) → {:.1}°, GDOP → {:.2}",
+            reason_text(goal.reason),
+            s.theta_min_deg,
+            s.theta_max_deg,
+            goal.predicted_theta_deg,
+            goal.predicted_gdop
+        );
+        if goal.used_fallback {
+            detail.push_str("; sampling fallback");
+        }
+        if let Some(note) = &goal.note {
+            detail.push_str("; ");
+            detail.push_str(note);
+        }
+        if detail.chars().count() > MAX_DETAIL_CHARS {
+            detail = detail.chars().take(MAX_DETAIL_CHARS - 1).collect::<String>() + "…";
+        }
+        RepositionCommand {
+            command_id: id,
+            goal_map_from_base: goal.map_from_base,
+            look_at_in_map: goal.look_at_in_map,
+            reason: goal.reason,
+            detail,
+            deadline: now.plus_secs(self.config.command_deadline_s),
+            issued: now,
+        }
+    }
+
+    fn record(&mut self, now: Stamp, kind: PlanKind, key: &'static str, detail: String) {
+        let previous = self.status.take();
+        self.status = Some(PlannerStatus {
+            decided: now,
+            kind,
+            key,
+            detail,
+            last_planned: previous.as_ref().and_then(|p| p.last_planned),
+            commands_issued: previous.as_ref().map_or(0, |p| p.commands_issued),
+            predicted_theta_deg: previous.as_ref().and_then(|p| p.predicted_theta_deg),
+            predicted_gdop: previous.as_ref().and_then(|p| p.predicted_gdop),
+            used_fallback: previous.is_some_and(|p| p.used_fallback),
+        });
+    }
+}
+
+fn reason_text(r: RepositionReason) -> &'static str {
+    match r {
+        RepositionReason::ThetaOutOfBand => "θ out of band",
+        RepositionReason::GdopHigh => "GDOP high",
+        RepositionReason::Improvement => "better geometry",
+        RepositionReason::FollowSource => "following the source",
+    }
+}
+
+fn hold_key(h: &HoldReason) -> &'static str {
+    match h {
+        HoldReason::TooFewRobots { .. } => "too_few_robots",
+        HoldReason::SourceUntrusted { .. } => "source_untrusted",
+        HoldReason::InvalidInput { .. } => "invalid_input",
+        HoldReason::NotDue { .. } => "not_due",
+        HoldReason::GeometryGood { .. } => "geometry_good",
+        HoldReason::GoalsInProgress => "goals_in_progress",
+        HoldReason::AtBestFeasible { .. } => "at_best_feasible",
+    }
+}
+
+fn infeasible_key(r: &InfeasibleReason) -> &'static str {
+    match r {
+        InfeasibleReason::NoFreeSpotAroundSource { .. } => "no_free_spot",
+        InfeasibleReason::RobotStuck { .. } => "robot_stuck",
+        InfeasibleReason::NoJointPlacement { .. } => "no_joint_placement",
+    }
+}
