@@ -5,13 +5,19 @@
 //!   sensor and diffuse noise, moving sources and arrays.
 //! - [`kinematics`]: differential-drive robots, waypoint trajectories, a navigator.
 //! - [`slam_noise`]: the pose error a SLAM system adds (noise and slow drift).
+//! - [`scenario`]: scenarios in TOML, and the built-in ones.
+//! - [`runner`]: a scenario end to end over gRPC in simulated time.
+//! - [`replay`]: recorded trials (audio + poses + truth) through the same code path.
 //! - [`report`]: what a run records, and its CSV/JSON reports and plots.
 //! - [`error`]: the crate's error enum, [`SimError`].
 
 pub mod acoustics;
 pub mod error;
 pub mod kinematics;
+pub mod replay;
 pub mod report;
+pub mod runner;
+pub mod scenario;
 pub mod slam_noise;
 
 pub use error::SimError;

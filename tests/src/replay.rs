@@ -1,0 +1,381 @@
+//! Replay of recorded trials: each robot's multichannel audio and SLAM poses
+//! (TUM) go through the same agent pipeline and the same coordinator, over
+//! gRPC on loopback, in event time and as fast as the CPU allows. With a
+//! truth trajectory (TUM) the run is scored like a simulation.
+//!
+//! Time: pose and truth files are read as seconds from an origin that is the
+//! simulator's epoch ([`SIM_EPOCH`]); audio sample 0 of a robot is at
+//! `start` seconds of its pose file's clock (0 unless given).
+//!
+//! What happens when the inputs do not fit together:
+//! - audio and poses whose time ranges do not overlap at all: an error;
+//! - DoAs stamped outside a robot's poses (audio longer than poses, or a late
+//!   first pose) or inside a gap longer than `--max-pose-gap-s`: not sent,
+//!   counted, and reported (the run goes on);
+//! - estimates outside the truth trajectory: kept, with empty RSE.
+
+use std::collections::BTreeMap;
+use std::path::PathBuf;
+
+use nalgebra::Point3;
+use soundmap_agent::array::ArrayGeometry;
+use soundmap_agent::audio::{self, AudioInput, AudioSource, BlockOptions};
+use soundmap_agent::link::CoordinatorEvent;
+use soundmap_agent::pipeline::{Pipeline, PipelineConfig};
+use soundmap_agent::pose::tum::{PoseTimeMapping, read_tum};
+use soundmap_agent::pose::{PoseBuffer, PoseBufferConfig, StampedPose};
+use soundmap_proto::{ArrayInfo, CommandAck, Hello, Observation, RobotId, Stamp, TrackedDoa};
+use soundmap_server::CoordinatorConfig;
+
+use crate::error::SimError;
+use crate::report::{RobotPath, RunRecord};
+use crate::runner::fleet::Fleet;
+use crate::runner::robot::pose_covariance;
+use crate::runner::rows::row_of;
+use crate::runner::{BLOCK_LEN, SIM_EPOCH};
+
+/// One robot's recording, as given on the command line:
+/// `id=ID,audio=F.wav,poses=F.tum,array=PRESET|F.toml[,start=S][,pose_std_m=M][,yaw_std_deg=D]`.
+#[derive(Clone, Debug, PartialEq)]
+pub struct RobotRecording {
+    /// Robot id.
+    pub id: String,
+    /// Multichannel WAV.
+    pub audio: PathBuf,
+    /// TUM trajectory of `map_from_base`.
+    pub poses: PathBuf,
+    /// Array preset or file.
+    pub array: String,
+    /// Pose-file time of audio sample 0 (s).
+    pub start_s: f64,
+    /// 1-σ position error of the poses (m), attached as their covariance.
+    pub pose_std_m: Option<f64>,
+    /// 1-σ yaw error of the poses (degrees).
+    pub yaw_std_deg: Option<f64>,
+}
+
+/// Parses `key=value,…` (the `--robot` argument).
+pub fn parse_robot(s: &str) -> Result<RobotRecording, String> {
+    let mut kv = BTreeMap::new();
+    for part in s.split(',').filter(|p| !p.is_empty()) {
+        let (k, v) = part.split_once('=').ok_or_else(|| format!("{part:?}: expected key=value"))?;
+        if kv.insert(k.trim().to_string(), v.trim().to_string()).is_some() {
+            return Err(format!("{k}: given twice"));
+        }
+    }
+    let mut take = |k: &str| kv.remove(k);
+    let need = |v: Option<String>, k: &str| {
+        v.ok_or_else(|| format!("{k}: missing (id, audio, poses and array are required)"))
+    };
+    let number = |v: Option<String>, k: &str| -> Result<Option<f64>, String> {
+        v.map(|v| {
+            v.parse::<f64>()
+                .ok()
+                .filter(|x| x.is_finite())
+                .ok_or_else(|| format!("{k}: {v:?} is not a number"))
+        })
+        .transpose()
+    };
+    let r = RobotRecording {
+        id: need(take("id"), "id")?,
+        audio: need(take("audio"), "audio")?.into(),
+        poses: need(take("poses"), "poses")?.into(),
+        array: need(take("array"), "array")?,
+        start_s: number(take("start"), "start")?.unwrap_or(0.0),
+        pose_std_m: number(take("pose_std_m"), "pose_std_m")?,
+        yaw_std_deg: number(take("yaw_std_deg"), "yaw_std_deg")?,
+    };
+    if let Some(k) = kv.keys().next() {
+        return Err(format!(
+            "{k}: unknown key (expected id, audio, poses, array, start, pose_std_m, yaw_std_deg)"
+        ));
+    }
+    RobotId::parse(&r.id, "id").map_err(|e| e.to_string())?;
+    Ok(r)
+}
+
+/// Arguments of `soundmap-sim replay`.
+#[derive(Clone, Debug, clap::Args)]
+pub struct ReplayArgs {
+    /// A robot's recording: id=ID,audio=F.wav,poses=F.tum,array=PRESET|F.toml[,start=S][,pose_std_m=M,yaw_std_deg=D].
+    #[arg(long = "robot", required = true, value_parser = parse_robot)]
+    pub robots: Vec<RobotRecording>,
+    /// True source trajectory (TUM); without it, no RSE is computed.
+    #[arg(long)]
+    pub truth: Option<PathBuf>,
+    /// Output directory.
+    #[arg(long)]
+    pub out: PathBuf,
+    /// Coordinator configuration (TOML).
+    #[arg(long)]
+    pub coordinator_config: Option<PathBuf>,
+    /// Agent pipeline configuration (TOML, the `pipeline` table of agent.toml).
+    #[arg(long)]
+    pub pipeline: Option<PathBuf>,
+    /// DoAs in a gap between poses longer than this are not sent (s).
+    #[arg(long, default_value_t = 0.5)]
+    pub max_pose_gap_s: f64,
+}
+
+/// A robot being replayed.
+struct Replayed {
+    id: RobotId,
+    array: ArrayGeometry,
+    pipeline: Pipeline,
+    audio: Box<dyn AudioSource>,
+    poses: PoseBuffer,
+    covariance: Option<nalgebra::Matrix6<f64>>,
+    hop: Vec<f32>,
+    /// Stamp of the next hop's first sample; `None` once the audio is exhausted.
+    next: Option<Stamp>,
+    start: Stamp,
+    samples_done: u64,
+    skipped: u64,
+}
+
+impl Replayed {
+    fn advance(&mut self) -> Result<(), SimError> {
+        self.next = self.audio.next_block(&mut self.hop).map_err(|e| SimError::Agent(e.to_string()))?;
+        Ok(())
+    }
+}
+
+fn agent(e: impl std::fmt::Display) -> SimError {
+    SimError::Agent(e.to_string())
+}
+
+fn load_poses(path: &std::path::Path, max_gap_s: f64) -> Result<(Vec<StampedPose>, PoseBuffer), SimError> {
+    let poses = read_tum(path, PoseTimeMapping::new(0.0, SIM_EPOCH)).map_err(agent)?;
+    if poses.is_empty() {
+        return Err(SimError::Replay(format!("{}: no poses", path.display())));
+    }
+    let config = PoseBufferConfig { capacity: poses.len().max(1), max_gap_s, ..PoseBufferConfig::default() };
+    let mut buffer = PoseBuffer::new(path.display().to_string(), config).map_err(agent)?;
+    for p in &poses {
+        buffer.push(p.clone()).map_err(agent)?;
+    }
+    Ok((poses, buffer))
+}
+
+/// Replays the recordings and returns what the coordinator published.
+pub fn replay(args: &ReplayArgs) -> Result<RunRecord, SimError> {
+    let runtime = tokio::runtime::Builder::new_multi_thread()
+        .worker_threads(2)
+        .enable_all()
+        .build()
+        .map_err(|e| SimError::io("<tokio runtime>", e))?;
+    runtime.block_on(replay_async(args))
+}
+
+async fn replay_async(args: &ReplayArgs) -> Result<RunRecord, SimError> {
+    let pipeline_config = match &args.pipeline {
+        Some(p) => soundmap_agent::config::load_pipeline(p).map_err(agent)?,
+        None => PipelineConfig::default(),
+    };
+    let coordinator = match &args.coordinator_config {
+        Some(p) => CoordinatorConfig::from_file(p).map_err(|e| SimError::Coordinator(e.to_string()))?,
+        None => CoordinatorConfig::default(),
+    };
+    let mut robots = Vec::new();
+    let mut paths = Vec::new();
+    for r in &args.robots {
+        if robots.iter().any(|o: &Replayed| o.id.as_str() == r.id) {
+            return Err(SimError::Replay(format!("robot {} given twice", r.id)));
+        }
+        let array = ArrayGeometry::load(&r.array).map_err(agent)?;
+        let pipeline = Pipeline::new(&array, &pipeline_config).map_err(agent)?;
+        let start = SIM_EPOCH.plus_secs(r.start_s);
+        let options = BlockOptions {
+            hop_len: pipeline.hop_len(),
+            channels: array.channels(),
+            sample_rate_hz: pipeline.sample_rate_hz(),
+            channel_map: None,
+            start,
+        };
+        let audio = audio::open(&AudioInput::Wav { path: r.audio.clone() }, &options).map_err(agent)?;
+        let (list, poses) = load_poses(&r.poses, args.max_pose_gap_s)?;
+        let (first, last) = (list[0].stamp, list[list.len() - 1].stamp);
+        if first > start.plus_secs(24.0 * 3600.0) || last < start {
+            return Err(SimError::Replay(format!(
+                "{}: poses cover {:.3}–{:.3} s but the audio of {} starts at {:.3} s: the time ranges do not overlap",
+                r.poses.display(),
+                first.seconds_since(SIM_EPOCH),
+                last.seconds_since(SIM_EPOCH),
+                r.id,
+                r.start_s
+            )));
+        }
+        paths.push(RobotPath {
+            id: r.id.clone(),
+            samples: list
+                .iter()
+                .step_by((list.len() / 2000).max(1))
+                .map(|p| {
+                    let t = p.map_from_base.translation.vector;
+                    (p.stamp.seconds_since(SIM_EPOCH), t.x, t.y, p.map_from_base.rotation.euler_angles().2)
+                })
+                .collect(),
+            goals: vec![],
+        });
+        let covariance = match (r.pose_std_m, r.yaw_std_deg) {
+            (None, None) => None,
+            (p, y) => Some(pose_covariance(p.unwrap_or(0.0), y.unwrap_or(0.0).to_radians())),
+        };
+        let hop = vec![0.0; array.channels() * pipeline.hop_len()];
+        let mut robot = Replayed {
+            id: RobotId::parse(&r.id, "id").map_err(agent)?,
+            array,
+            pipeline,
+            audio,
+            poses,
+            covariance,
+            hop,
+            next: None,
+            start,
+            samples_done: 0,
+            skipped: 0,
+        };
+        robot.advance()?;
+        robots.push(robot);
+    }
+    let truth = match &args.truth {
+        Some(p) => Some(load_poses(p, f64::INFINITY)?),
+        None => None,
+    };
+    let hellos: Vec<Hello> = robots
+        .iter()
+        .map(|r| Hello {
+            robot_id: r.id.clone(),
+            array: ArrayInfo {
+                base_from_array: r.array.base_from_array,
+                microphone_count: r.array.channels() as u32,
+                preset: Some(r.array.name.clone()),
+                microphone_positions: r.array.positions().collect(),
+            },
+            software_version: concat!("soundmap-sim replay ", env!("CARGO_PKG_VERSION")).into(),
+        })
+        .collect();
+    let t_start = robots.iter().map(|r| r.start).min().unwrap_or(SIM_EPOCH);
+    let mut fleet = Fleet::start(coordinator, &hellos, t_start).await?;
+    let mut rows = Vec::new();
+    let mut end = t_start;
+    // Hops in stamp order (ties: robot order), as a live fleet would send them.
+    while let Some(i) =
+        (0..robots.len()).filter(|&i| robots[i].next.is_some()).min_by_key(|&i| (robots[i].next, i))
+    {
+        let r = &mut robots[i];
+        let first = r.next.expect("filtered");
+        let hop_len = r.pipeline.hop_len() as u64;
+        let fs = r.pipeline.sample_rate_hz() as u64;
+        let result = r.pipeline.process_hop(first, &r.hop);
+        let stamp = result.stamp;
+        let doas: Vec<TrackedDoa> = result
+            .tracks
+            .iter()
+            .filter(|t| t.confirmed)
+            .map(|t| TrackedDoa {
+                track_id: t.track_id,
+                direction_in_array: t.direction,
+                activity: t.activity.clamp(0.0, 1.0),
+                angular_sigma_rad: Some(t.angular_sigma_rad.clamp(1e-4, std::f64::consts::PI)),
+            })
+            .collect();
+        // The coordinator's clock: the end of the simulator-sized block holding this hop.
+        let block = BLOCK_LEN as u64;
+        let block_end = (r.samples_done / block + 1) * block;
+        r.samples_done += hop_len;
+        let now = r.start.plus_ns((block_end as i128 * 1_000_000_000 / fs as i128) as i64);
+        end = end.max(now);
+        fleet.set_time(now);
+        match r.poses.map_from_base(stamp) {
+            Ok(map_from_base) => {
+                let obs =
+                    Observation { sequence: 0, stamp, map_from_base, pose_covariance: r.covariance, doas };
+                for event in fleet.observe(i, obs).await? {
+                    answer(&mut fleet, i, event).await?;
+                }
+            }
+            Err(_) => r.skipped += 1,
+        }
+        for e in fleet.drain_estimates()? {
+            let at = Stamp::from_ns(e.stamp_ns);
+            let truth_at = truth
+                .as_ref()
+                .and_then(|(_, b)| b.lookup(at).ok())
+                .map(|p| p.map_from_base.translation.vector.into());
+            let arrays: Vec<Point3<f64>> = robots
+                .iter()
+                .map(|r| {
+                    r.poses.lookup(at).ok().map_or_else(Point3::origin, |p| {
+                        p.map_from_base * r.array.base_from_array * Point3::origin()
+                    })
+                })
+                .collect();
+            rows.push(row_of(&e, SIM_EPOCH, truth_at, if truth_at.is_some() { &arrays } else { &[] }));
+        }
+        robots[i].advance()?;
+    }
+    fleet.shutdown().await?;
+    for r in &robots {
+        if r.skipped > 0 {
+            eprintln!(
+                "replay: robot {}: {} hop(s) had no pose at their DoA stamp (outside the pose file or in a gap) and were not sent",
+                r.id, r.skipped
+            );
+        }
+    }
+    let source_path = truth
+        .map(|(list, _)| {
+            list.iter()
+                .step_by((list.len() / 4000).max(1))
+                .map(|p| (p.stamp.seconds_since(SIM_EPOCH), p.map_from_base.translation.vector.into()))
+                .collect()
+        })
+        .unwrap_or_default();
+    Ok(RunRecord {
+        name: "replay".into(),
+        duration_s: end.seconds_since(t_start),
+        active_positioning: false,
+        theta_band_deg: (40.0, 140.0),
+        rows,
+        robot_ids: robots.iter().map(|r| r.id.to_string()).collect(),
+        robots: paths,
+        source_path,
+        room: None,
+        seed: None,
+    })
+}
+
+/// Recorded robots cannot move: reposition commands are refused.
+async fn answer(fleet: &mut Fleet, robot: usize, event: CoordinatorEvent) -> Result<(), SimError> {
+    let id = match event {
+        CoordinatorEvent::Reposition(c) => c.command_id,
+        CoordinatorEvent::InvalidReposition { command_id, .. } => command_id,
+        CoordinatorEvent::Cancel { .. } => return Ok(()),
+        CoordinatorEvent::StreamError(e) => {
+            return Err(SimError::Coordinator(format!("{}: {}", e.field, e.message)));
+        }
+    };
+    let ack =
+        CommandAck { command_id: id, accepted: false, reason: "replay: a recorded robot cannot move".into() };
+    fleet.command_ack(robot, &ack).await
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn robot_argument() {
+        let r = parse_robot("id=r1,audio=a.wav,poses=p.tum,array=respeaker-4,start=1.5").unwrap();
+        assert_eq!((r.id.as_str(), r.start_s, r.array.as_str()), ("r1", 1.5, "respeaker-4"));
+        assert!(parse_robot("id=r1,audio=a.wav,poses=p.tum").unwrap_err().contains("array"));
+        assert!(
+            parse_robot("id=r1,audio=a.wav,poses=p.tum,array=x,colour=red").unwrap_err().contains("colour")
+        );
+        assert!(
+            parse_robot("id=r1,audio=a.wav,poses=p.tum,array=x,start=soon").unwrap_err().contains("start")
+        );
+        assert!(parse_robot("id=r 1,audio=a.wav,poses=p.tum,array=x").is_err());
+    }
+}

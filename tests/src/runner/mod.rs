@@ -1,0 +1,337 @@
+//! Runs a scenario end to end: the room renders each robot's microphones,
+//! each robot's agent pipeline hears DoAs, its SLAM pose is attached, and the
+//! observations go over real gRPC (loopback) to a real coordinator, in
+//! simulated time. The coordinator's estimates are recorded against the truth.
+//!
+//! A run is deterministic for a seed: time is simulated, and observations are
+//! sent in lockstep (see [`fleet`]).
+
+pub mod fleet;
+pub mod recording;
+pub mod robot;
+pub mod rows;
+
+use std::path::PathBuf;
+
+use nalgebra::Point3;
+use soundmap_proto::{CommandAck, CommandProgress, Stamp};
+
+use crate::acoustics::{
+    Activity, RirConfig, Scene, ShoeboxRoom, SourceSignal, Waveform, direct_path_rms, noise_std_for_snr,
+};
+use crate::error::SimError;
+use crate::report::{RobotPath, RoomOutline, RunRecord};
+use crate::scenario::{Scenario, SignalSpec};
+use fleet::Fleet;
+use robot::SimRobot;
+use soundmap_agent::link::CoordinatorEvent;
+
+/// Start of simulated time: 2026-01-01T00:00:00Z (Unix ns). Replays of
+/// recordings made by the simulator use the same origin.
+pub const SIM_EPOCH: Stamp = Stamp::from_ns(1_767_225_600_000_000_000);
+
+/// Samples rendered per block (4 hops of 128).
+pub const BLOCK_LEN: usize = 512;
+
+/// How to run a scenario.
+#[derive(Clone, Debug, Default)]
+pub struct RunOptions {
+    /// Overrides the scenario's seed.
+    pub seed: Option<u64>,
+    /// Overrides whether active positioning is on.
+    pub active_positioning: Option<bool>,
+    /// Writes the run as a recorded trial (WAV + TUM per robot, source TUM) into this directory.
+    pub record_dir: Option<PathBuf>,
+    /// Shows a progress bar on the terminal.
+    pub progress: bool,
+}
+
+/// Runs `scenario` and returns what it recorded.
+pub fn run(scenario: &Scenario, options: &RunOptions) -> Result<RunRecord, SimError> {
+    let runtime = tokio::runtime::Builder::new_multi_thread()
+        .worker_threads(2)
+        .thread_name("soundmap-sim")
+        .enable_all()
+        .build()
+        .map_err(|e| SimError::io("<tokio runtime>", e))?;
+    runtime.block_on(run_async(scenario, options))
+}
+
+fn signal(spec: &SignalSpec) -> Waveform {
+    match *spec {
+        SignalSpec::WhiteNoise => Waveform::WhiteNoise,
+        SignalSpec::BandNoise { low_hz, high_hz } => Waveform::BandNoise { low_hz, high_hz },
+        SignalSpec::Tone { frequency_hz } => Waveform::Tone { frequency_hz, phase_rad: 0.0 },
+    }
+}
+
+/// The acoustic scene of a scenario.
+pub fn scene(s: &Scenario, seed: u64) -> Result<Scene, SimError> {
+    let room = ShoeboxRoom::from_rt60(s.room.min_corner(), s.room.size(), s.room.rt60_s)?;
+    let sources = s
+        .sources
+        .iter()
+        .enumerate()
+        .map(|(i, src)| SourceSignal {
+            waveform: signal(&src.signal),
+            rms: src.rms,
+            activity: if src.active.is_empty() {
+                Activity::Always
+            } else {
+                Activity::Intervals(src.active.iter().map(|[a, b]| (*a, *b)).collect())
+            },
+            ramp_s: 0.005,
+            seed: seed.wrapping_add(1000 + i as u64),
+        })
+        .collect();
+    let rir = RirConfig { length_s: s.room.rt60_s.clamp(0.1, 1.2), ..RirConfig::default() };
+    Ok(Scene { room, sources, rir })
+}
+
+async fn run_async(scenario: &Scenario, options: &RunOptions) -> Result<RunRecord, SimError> {
+    let seed = options.seed.unwrap_or(scenario.seed);
+    let active = options.active_positioning.unwrap_or(scenario.active_positioning.enabled);
+    let fs = scenario.agent.sample_rate_hz;
+    let hop = scenario.agent.hop_len;
+    if hop == 0 || !BLOCK_LEN.is_multiple_of(hop) {
+        return Err(SimError::Scenario {
+            path: scenario.name.clone(),
+            field: "agent.hop_len".into(),
+            message: format!("{hop} must divide the simulator's block of {BLOCK_LEN} samples"),
+        });
+    }
+    let hop_s = hop as f64 / fs as f64;
+    let scene = scene(scenario, seed)?;
+    let reference = direct_path_rms(scenario.sources[0].rms, scenario.noise.reference_distance_m);
+    let sensor_std = noise_std_for_snr(reference, scenario.noise.sensor_snr_db);
+    let diffuse_std = scenario.noise.diffuse_snr_db.map(|snr| noise_std_for_snr(reference, snr));
+    let mut robots = scenario
+        .robots
+        .iter()
+        .enumerate()
+        .map(|(i, spec)| {
+            SimRobot::new(
+                i,
+                spec,
+                &scene,
+                &scenario.agent,
+                &scenario.slam,
+                sensor_std,
+                diffuse_std,
+                seed,
+                BLOCK_LEN,
+                hop_s,
+            )
+        })
+        .collect::<Result<Vec<_>, _>>()?;
+    let mut config = scenario.coordinator.clone();
+    configure_positioning(&mut config, scenario, active);
+    let hellos: Vec<_> = robots.iter().map(SimRobot::hello).collect();
+    let mut fleet = Fleet::start(config, &hellos, SIM_EPOCH).await?;
+    let mut recorders = match &options.record_dir {
+        Some(dir) => {
+            std::fs::create_dir_all(dir).map_err(|e| SimError::io(dir.display(), e))?;
+            Some(
+                robots
+                    .iter()
+                    .map(|r| recording::RobotRecorder::create(dir, r.id.as_str(), r.array.channels(), fs))
+                    .collect::<Result<Vec<_>, _>>()?,
+            )
+        }
+        None => None,
+    };
+    let stamp_of = |sample: u64| SIM_EPOCH.plus_ns((sample as i128 * 1_000_000_000 / fs as i128) as i64);
+    let t_of = |stamp: Stamp| stamp.seconds_since(SIM_EPOCH);
+    let blocks = (scenario.duration_s * fs as f64 / BLOCK_LEN as f64).ceil() as u64;
+    let bar = progress_bar(options.progress, blocks, &scenario.name);
+    let mut rows = rows::RowMaker::new(scenario, &robots);
+    let mut paths: Vec<RobotPath> =
+        robots.iter().map(|r| RobotPath { id: r.id.to_string(), samples: vec![], goals: vec![] }).collect();
+    let mut source_truth = Vec::new();
+    let hops_per_block = BLOCK_LEN / hop;
+    for b in 0..blocks {
+        let first = b * BLOCK_LEN as u64;
+        for h in 0..hops_per_block {
+            let now_s = (first + (h * hop) as u64) as f64 / fs as f64;
+            for r in robots.iter_mut() {
+                r.step(now_s);
+            }
+            if options.record_dir.is_some() {
+                let t = stamp_of(first + (h * hop) as u64);
+                source_truth.push((t - SIM_EPOCH, scenario.sources[0].position_at(t_of(t))));
+            }
+        }
+        let end_s = (first + BLOCK_LEN as u64) as f64 / fs as f64;
+        let sources: Vec<Point3<f64>> = scenario.sources.iter().map(|s| s.position_at(end_s)).collect();
+        hear_all(&mut robots, &sources, first, &stamp_of, recorders.as_mut())?;
+        fleet.set_time(stamp_of(first + BLOCK_LEN as u64));
+        for h in 0..hops_per_block {
+            for i in 0..robots.len() {
+                let hop_doas = robots[i].hops[h].clone();
+                let obs = robots[i].observation(&hop_doas, t_of(hop_doas.stamp))?;
+                if let Some(rec) = recorders.as_mut() {
+                    rec[i].pose(obs.stamp, SIM_EPOCH, &obs.map_from_base)?;
+                }
+                for event in fleet.observe(i, obs).await? {
+                    handle_event(&mut fleet, &mut robots, &mut paths, i, event, t_of(hop_doas.stamp)).await?;
+                }
+                for e in fleet.drain_estimates()? {
+                    rows.push(&e, &robots);
+                }
+            }
+        }
+        for i in 0..robots.len() {
+            if let Some(p) = robots[i].progress_to_report() {
+                let progress = CommandProgress {
+                    command_id: p.goal_id,
+                    state: p.state,
+                    distance_remaining_m: Some(p.distance_remaining_m),
+                    detail: String::new(),
+                };
+                fleet.command_progress(i, &progress).await?;
+            }
+        }
+        if b % 12 == 0 {
+            for (r, path) in robots.iter().zip(paths.iter_mut()) {
+                let p = r.pose();
+                path.samples.push((end_s, p.x_m, p.y_m, p.yaw_rad));
+            }
+        }
+        if let Some(bar) = &bar {
+            bar.inc(1);
+        }
+    }
+    if let Some(bar) = bar {
+        bar.finish_and_clear();
+    }
+    let stream_errors = fleet.stream_errors();
+    fleet.shutdown().await?;
+    if stream_errors > 0 {
+        return Err(SimError::Coordinator(format!(
+            "the coordinator refused {stream_errors} message(s) of the agents"
+        )));
+    }
+    if let (Some(dir), Some(recs)) = (&options.record_dir, recorders) {
+        for r in recs {
+            r.finish()?;
+        }
+        recording::write_source_tum(&dir.join("source.tum"), &source_truth)?;
+    }
+    let duration_s = blocks as f64 * BLOCK_LEN as f64 / fs as f64;
+    Ok(RunRecord {
+        name: scenario.name.clone(),
+        duration_s,
+        active_positioning: active,
+        theta_band_deg: (
+            scenario.active_positioning.theta_min_deg,
+            scenario.active_positioning.theta_max_deg,
+        ),
+        rows: rows.finish(),
+        robot_ids: robots.iter().map(|r| r.id.to_string()).collect(),
+        robots: paths,
+        source_path: (0..=(duration_s * 10.0) as usize)
+            .map(|k| {
+                let t = k as f64 / 10.0;
+                (t, scenario.sources[0].position_at(t))
+            })
+            .collect(),
+        room: Some(RoomOutline { floor: scenario.room.floor(), obstacles: scenario.room.obstacles.clone() }),
+        seed: Some(seed),
+    })
+}
+
+/// Renders and localizes one block for every robot, two at a time in parallel.
+fn hear_all(
+    robots: &mut [SimRobot],
+    sources: &[Point3<f64>],
+    first: u64,
+    stamp_of: &(impl Fn(u64) -> Stamp + Sync),
+    recorders: Option<&mut Vec<recording::RobotRecorder>>,
+) -> Result<(), SimError> {
+    let end_s_pose = |r: &SimRobot| r.pose().map_from_base();
+    let mics: Vec<_> = robots.iter().map(|r| r.microphones_in_map(&end_s_pose(r))).collect();
+    let mut audio: Vec<Vec<f32>> = vec![Vec::new(); robots.len()];
+    let record = recorders.is_some();
+    std::thread::scope(|scope| {
+        let handles: Vec<_> = robots
+            .iter_mut()
+            .zip(&mics)
+            .zip(audio.iter_mut())
+            .map(|((r, m), a)| {
+                scope.spawn(move || {
+                    r.hear(m, sources, first, stamp_of, |hop| {
+                        if record {
+                            a.extend_from_slice(hop)
+                        }
+                    })
+                })
+            })
+            .collect();
+        handles.into_iter().try_for_each(|h| h.join().expect("robot thread panicked"))
+    })?;
+    if let Some(recs) = recorders {
+        for (rec, a) in recs.iter_mut().zip(&audio) {
+            rec.audio(a)?;
+        }
+    }
+    Ok(())
+}
+
+/// Hands a coordinator message to a robot.
+async fn handle_event(
+    fleet: &mut Fleet,
+    robots: &mut [SimRobot],
+    paths: &mut [RobotPath],
+    i: usize,
+    event: CoordinatorEvent,
+    t_s: f64,
+) -> Result<(), SimError> {
+    match event {
+        CoordinatorEvent::Reposition(cmd) => {
+            let deadline_s = cmd.deadline.seconds_since(SIM_EPOCH);
+            let answer = robots[i].command(cmd.command_id, &cmd.goal_map_from_base, deadline_s);
+            if answer.is_ok() {
+                let g = cmd.goal_map_from_base.translation.vector;
+                paths[i].goals.push((t_s, g.x, g.y));
+            }
+            let ack = CommandAck {
+                command_id: cmd.command_id,
+                accepted: answer.is_ok(),
+                reason: answer.err().unwrap_or_default(),
+            };
+            fleet.command_ack(i, &ack).await
+        }
+        CoordinatorEvent::InvalidReposition { command_id, error } => {
+            let ack = CommandAck { command_id, accepted: false, reason: error.to_string() };
+            fleet.command_ack(i, &ack).await
+        }
+        CoordinatorEvent::Cancel { .. } => Ok(()),
+        CoordinatorEvent::StreamError(e) => Err(SimError::Coordinator(format!(
+            "robot {} got a stream error: {}: {}",
+            robots[i].id, e.field, e.message
+        ))),
+    }
+}
+
+/// Applies the scenario's active-positioning settings to the coordinator's config.
+fn configure_positioning(
+    _config: &mut soundmap_server::CoordinatorConfig,
+    _scenario: &Scenario,
+    _active: bool,
+) {
+    // Filled in when the coordinator exposes active positioning in its config.
+}
+
+fn progress_bar(show: bool, blocks: u64, name: &str) -> Option<indicatif::ProgressBar> {
+    if !show {
+        return None;
+    }
+    let bar = indicatif::ProgressBar::new(blocks);
+    if let Ok(style) =
+        indicatif::ProgressStyle::with_template("{prefix} [{bar:40}] {percent:>3}% {elapsed}/{duration}")
+    {
+        bar.set_style(style.progress_chars("=> "));
+    }
+    bar.set_prefix(name.to_string());
+    Some(bar)
+}

@@ -1,0 +1,95 @@
+//! Turns published estimates into timeline rows scored against the truth.
+
+use nalgebra::Point3;
+use soundmap_proto::{Stamp, wire};
+
+use super::SIM_EPOCH;
+use super::robot::SimRobot;
+use crate::report::TimelineRow;
+use crate::scenario::Scenario;
+
+/// Builds [`TimelineRow`]s.
+#[derive(Debug)]
+pub struct RowMaker {
+    source: crate::scenario::SourceSpec,
+    rows: Vec<TimelineRow>,
+}
+
+/// The name of a wire estimate method.
+pub fn method_name(m: i32) -> String {
+    match wire::EstimateMethod::try_from(m) {
+        Ok(wire::EstimateMethod::RayPair) => "ray_pair",
+        Ok(wire::EstimateMethod::LeastSquares) => "least_squares",
+        Ok(wire::EstimateMethod::LevenbergMarquardt) => "levenberg_marquardt",
+        Ok(wire::EstimateMethod::KalmanFilter) => "kalman_filter",
+        _ => "none",
+    }
+    .into()
+}
+
+/// A wire point.
+pub fn point(v: &Option<wire::Vec3>) -> Option<Point3<f64>> {
+    v.as_ref().map(|v| Point3::new(v.x, v.y, v.z))
+}
+
+/// θ at `x` between the points, for two; the pair closest to 90° for more (degrees).
+pub fn best_theta_deg(x: &Point3<f64>, points: &[Point3<f64>]) -> f64 {
+    let mut best: Option<f64> = None;
+    for i in 0..points.len() {
+        for j in (i + 1)..points.len() {
+            let t = soundmap_server::uncertainty::angle_at_deg(x, &points[i], &points[j]);
+            if best.is_none_or(|b| (t - 90.0).abs() < (b - 90.0).abs()) {
+                best = Some(t);
+            }
+        }
+    }
+    best.unwrap_or(0.0)
+}
+
+/// A published estimate as a timeline row, scored against `truth` and the
+/// true array centres (`arrays`, in robot order) at its stamp.
+pub fn row_of(
+    e: &wire::SourceEstimate,
+    t0: Stamp,
+    truth: Option<Point3<f64>>,
+    arrays: &[Point3<f64>],
+) -> TimelineRow {
+    let t_s = Stamp::from_ns(e.stamp_ns).seconds_since(t0);
+    let triangulation = if e.filtered.is_some() {
+        e.triangulation.as_ref().and_then(|t| point(&t.position_in_map_m))
+    } else {
+        None
+    };
+    TimelineRow {
+        t_s,
+        distances_m: truth.map(|s| arrays.iter().map(|a| (a - s).norm()).collect()).unwrap_or_default(),
+        theta_deg: e.theta_deg,
+        true_theta_deg: truth.filter(|_| arrays.len() >= 2).map(|s| best_theta_deg(&s, arrays)),
+        gdop: if e.gdop > 0.0 { e.gdop } else { f64::INFINITY },
+        estimate: point(&e.position_in_map_m),
+        triangulation,
+        trusted: e.trusted,
+        method: method_name(e.method),
+        robots: e.robots.clone(),
+        truth,
+    }
+}
+
+impl RowMaker {
+    /// Rows for `scenario`, scored against its first source.
+    pub fn new(scenario: &Scenario, _robots: &[SimRobot]) -> Self {
+        RowMaker { source: scenario.sources[0].clone(), rows: Vec::new() }
+    }
+
+    /// Records an estimate.
+    pub fn push(&mut self, e: &wire::SourceEstimate, robots: &[SimRobot]) {
+        let t_s = Stamp::from_ns(e.stamp_ns).seconds_since(SIM_EPOCH);
+        let arrays: Vec<Point3<f64>> = robots.iter().map(|r| r.array_centre_at(t_s)).collect();
+        self.rows.push(row_of(e, SIM_EPOCH, Some(self.source.position_at(t_s)), &arrays));
+    }
+
+    /// The rows, in publication order.
+    pub fn finish(self) -> Vec<TimelineRow> {
+        self.rows
+    }
+}
