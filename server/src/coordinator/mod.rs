@@ -325,18 +325,19 @@ impl Coordinator {
     /// within the alignment window and that observation's most active DoA; at
     /// least two robots), and the track's state at that stamp beside it.
     ///
-    /// On the way it starts a track from the triangulation when none is live
-    /// and the triangulation is trusted, applies the queued DoAs to the tracker,
-    /// checks the track's lifecycle at `now`, and, when active positioning is on
+    /// On the way it checks the track's lifecycle at `now`, starts a track from
+    /// the triangulation when none is live and the triangulation is trusted,
+    /// applies the queued DoAs to the tracker, and, when active positioning is on
     /// and due, runs a planning cycle whose commands are queued for
     /// [`Coordinator::take_outgoing`].
     pub fn estimate(&mut self, now: Stamp) -> Option<Estimate> {
+        // A track silent too long is lost before a new one may start from this batch.
+        self.tracking.maintain(now);
         let aligned = self.pending.take().and_then(|t| self.triangulate_at(now, t));
         if let Some((e, newest)) = &aligned {
             self.tracking.start_if_needed(*newest, &e.triangulation);
         }
         self.tracking.flush();
-        self.tracking.maintain(now);
         let (mut estimate, _) = aligned?;
         estimate.filtered = self.tracking.estimate_at(estimate.stamp);
         estimate.source_id = self.tracking.live_track_id().unwrap_or(0);

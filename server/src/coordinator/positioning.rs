@@ -34,10 +34,13 @@ pub struct PositioningUpdate {
     pub theta_max_deg: Option<f64>,
 }
 
-/// Checks a θ band: both edges finite, 0 ≤ min < max ≤ 180, and wider than
-/// twice the planner's θ hysteresis (else no θ could end a correction).
-/// Errors name `theta_min_deg` or `theta_max_deg`; relations between the two
-/// name `theta_max_deg` when `blame_max`, else `theta_min_deg`.
+/// Checks a θ band: both edges finite, 0 ≤ min < max ≤ 180, wider than twice
+/// the planner's θ hysteresis h (else no θ could end a correction), and
+/// containing 90° ± h: the planner always aims at the Fisher-optimal geometry
+/// (90° between two robots), so a band without it could never be satisfied and
+/// would re-task the robots forever. Errors name `theta_min_deg` or
+/// `theta_max_deg`; relations between the two name `theta_max_deg` when
+/// `blame_max`, else `theta_min_deg`.
 pub fn check_band(min: f64, max: f64, hysteresis_deg: f64, blame_max: bool) -> Result<(), ValidationError> {
     for (field, v, ok, range) in [
         ("theta_min_deg", min, (0.0..180.0).contains(&min), "[0, 180)"),
@@ -66,6 +69,19 @@ pub fn check_band(min: f64, max: f64, hysteresis_deg: f64, blame_max: bool) -> R
                 "band {min}°–{max}° is not wider than twice planner.theta_hysteresis_deg ({hysteresis_deg}°)"
             )),
         ));
+    }
+    for (field, outside) in
+        [("theta_min_deg", min + hysteresis_deg >= 90.0), ("theta_max_deg", max - hysteresis_deg <= 90.0)]
+    {
+        if outside {
+            return Err(ValidationError::new(
+                field,
+                Problem::Invalid(format!(
+                    "band {min}°–{max}° must contain 90° ± planner.theta_hysteresis_deg ({hysteresis_deg}°), \
+                     the geometry the planner aims at"
+                )),
+            ));
+        }
     }
     Ok(())
 }
