@@ -239,7 +239,7 @@ async fn replay_async(args: &ReplayArgs) -> Result<RunRecord, SimError> {
         robots.push(robot);
     }
     let truth = match &args.truth {
-        Some(p) => Some(load_poses(p, f64::INFINITY)?),
+        Some(p) => Some(load_poses(p, 1e9)?),
         None => None,
     };
     let hellos: Vec<Hello> = robots

@@ -216,6 +216,7 @@ async fn run_async(scenario: &Scenario, options: &RunOptions) -> Result<RunRecor
             r.finish()?;
         }
         recording::write_source_tum(&dir.join("source.tum"), &source_truth)?;
+        write_replay_command(dir, scenario, &robots)?;
     }
     let duration_s = blocks as f64 * BLOCK_LEN as f64 / fs as f64;
     Ok(RunRecord {
@@ -238,6 +239,28 @@ async fn run_async(scenario: &Scenario, options: &RunOptions) -> Result<RunRecor
         room: Some(RoomOutline { floor: scenario.room.floor(), obstacles: scenario.room.obstacles.clone() }),
         seed: Some(seed),
     })
+}
+
+/// Writes `replay-command.txt`: the `soundmap-sim replay` call that replays the recording.
+fn write_replay_command(
+    dir: &std::path::Path,
+    scenario: &Scenario,
+    robots: &[SimRobot],
+) -> Result<(), SimError> {
+    let (pos, yaw) = robot::slam_pose_std(&scenario.slam);
+    let mut cmd = String::from("soundmap-sim replay");
+    for (r, spec) in robots.iter().zip(&scenario.robots) {
+        let id = r.id.as_str();
+        let d = dir.display();
+        cmd.push_str(&format!(
+            " \\\n  --robot id={id},audio={d}/{id}.wav,poses={d}/{id}.tum,array={},pose_std_m={pos},yaw_std_deg={}",
+            spec.array,
+            yaw.to_degrees()
+        ));
+    }
+    cmd.push_str(&format!(" \\\n  --truth {}/source.tum --out OUT\n", dir.display()));
+    let path = dir.join("replay-command.txt");
+    std::fs::write(&path, cmd).map_err(|e| SimError::io(path.display(), e))
 }
 
 /// Renders and localizes one block for every robot, two at a time in parallel.
