@@ -1,5 +1,108 @@
 //! Reports of a run: `timeline.csv`, `theta_bins.csv`, `summary.json`, plots.
+//!
+//! [`write_reports`] turns a [`RunRecord`] into, in `out_dir`:
+//!
+//! | file | what |
+//! |---|---|
+//! | `timeline.csv` | one row per published estimate ([`csv`] lists the columns) |
+//! | `theta_bins.csv` | RSE mean/std/count in 15° bins of θ ([`bins`]) |
+//! | `summary.json` | the run's figures ([`Summary`]; conventions in [`summary`]) |
+//! | `distances_rse.{svg,png}` | d1 … dN and RSE over time |
+//! | `theta_rse.{svg,png}` | θ over time with the band, and RSE |
+//! | `rse_vs_theta.{svg,png}` | mean RSE ± std per 15° bin over the scatter of all estimates |
+//! | `map.{svg,png}` | top-down map: room, robot paths and goals, true source, estimates by RSE |
+//!
+//! [`write_comparison`] does it for one scenario run with active positioning on
+//! and off, side by side. [`print_summary_table`] and [`print_comparison_table`]
+//! print the figures for a terminal.
 
+pub mod bins;
+pub mod comparison;
+pub mod csv;
+pub mod derived;
+pub mod plots;
 pub mod record;
+pub mod stats;
+pub mod summary;
+pub mod table;
 
+use std::path::Path;
+
+pub use comparison::write_comparison;
+pub use derived::ThetaSource;
 pub use record::{RobotPath, RoomOutline, RunRecord, TimelineRow};
+pub use summary::{Summary, TriangulationSummary};
+pub use table::{format_comparison_table, format_summary_table, print_comparison_table, print_summary_table};
+
+use crate::SimError;
+use derived::Derived;
+
+/// File name of the timeline.
+pub const TIMELINE_CSV: &str = "timeline.csv";
+/// File name of the θ bins.
+pub const THETA_BINS_CSV: &str = "theta_bins.csv";
+/// File name of the summary.
+pub const SUMMARY_JSON: &str = "summary.json";
+/// Stems of the plots of one run; each is written as `.svg` and `.png`.
+pub const PLOT_STEMS: [&str; 4] = ["distances_rse", "theta_rse", "rse_vs_theta", "map"];
+/// File name of the side-by-side summaries of [`write_comparison`].
+pub const COMPARISON_JSON: &str = "comparison.json";
+/// Stem of the comparison plot (`.svg` and `.png`).
+pub const COMPARISON_PLOT_STEM: &str = "comparison_theta";
+
+/// Write every report of `record` into `out_dir` (created if missing) and return its summary.
+///
+/// Errors: a record whose rows are not in time order or whose θ band is not a
+/// finite `lo ≤ hi` ([`SimError::InvalidConfig`]); a file that cannot be written
+/// or drawn ([`SimError::Io`], naming the file).
+pub fn write_reports(record: &RunRecord, out_dir: &Path) -> Result<Summary, SimError> {
+    validate(record)?;
+    std::fs::create_dir_all(out_dir).map_err(|e| SimError::io(out_dir.display(), e))?;
+    let derived = Derived::new(record);
+
+    write(out_dir, TIMELINE_CSV, &csv::timeline_csv(record))?;
+    let theta_bins = bins::theta_bins(&derived);
+    write(out_dir, THETA_BINS_CSV, &bins::bins_csv(&theta_bins, derived.theta_source))?;
+    let summary = Summary::new(record, &derived);
+    write(out_dir, SUMMARY_JSON, &summary.to_json())?;
+
+    let [distances, theta, rse_theta, map] = PLOT_STEMS;
+    plots::save(&plots::distances::DistancesRse { record, derived: &derived }, out_dir, distances)?;
+    plots::save(&plots::theta::ThetaRse { record, derived: &derived }, out_dir, theta)?;
+    let figure = plots::rse_theta::RseVsTheta { record, derived: &derived, bins: &theta_bins };
+    plots::save(&figure, out_dir, rse_theta)?;
+    plots::save(&plots::map::MapFigure { record, derived: &derived }, out_dir, map)?;
+    Ok(summary)
+}
+
+/// Reject records the reports would silently misread.
+fn validate(record: &RunRecord) -> Result<(), SimError> {
+    let (lo, hi) = record.theta_band_deg;
+    if !(lo.is_finite() && hi.is_finite() && lo <= hi) {
+        return Err(SimError::invalid(
+            "theta_band_deg",
+            format!("must be finite with lo ≤ hi, got ({lo}, {hi})"),
+        ));
+    }
+    if let Some((i, row)) = record.rows.iter().enumerate().find(|(_, r)| !r.t_s.is_finite()) {
+        return Err(SimError::invalid("rows.t_s", format!("must be finite, row {i} has {}", row.t_s)));
+    }
+    for (i, pair) in record.rows.windows(2).enumerate() {
+        if pair[1].t_s < pair[0].t_s {
+            let reason = format!(
+                "must be in time order: row {} at {} s follows {} s",
+                i + 1,
+                pair[1].t_s,
+                pair[0].t_s
+            );
+            return Err(SimError::invalid("rows.t_s", reason));
+        }
+    }
+    Ok(())
+}
+
+/// Write `contents` to `dir/name`.
+fn write(dir: &Path, name: &str, contents: &str) -> Result<(), SimError> {
+    let path = dir.join(name);
+    std::fs::write(&path, contents).map_err(|e| SimError::io(path.display(), e))
+}
