@@ -2,7 +2,7 @@
 //! them, with the robot's SLAM pose, to the coordinator.
 //!
 //! Pure core (no sockets, files or clocks):
-//! - [`array`]: microphone array geometry, presets, TOML files.
+//! - [`mod@array`]: microphone array geometry, presets, TOML files.
 //! - [`stft`]: framing, windowing and real FFTs of multichannel audio.
 //! - [`srp`]: SRP-PHAT on a hierarchical sphere grid with sub-grid refinement.
 //! - [`doa_tracker`]: Kalman tracking of DoAs on the sphere (ids, activity).
@@ -14,7 +14,7 @@
 //! - [`odas`]: DoAs from a running ODAS (SST JSON) instead of our own localization.
 //! - [`link`]: the gRPC stream to the coordinator (reconnection, bounded buffer).
 //! - [`navigator`]: executes reposition commands.
-//! - [`config`]: `agent.toml`.
+//! - [`config`] — the agent configuration file, `agent.toml`.
 
 pub mod array;
 pub mod audio;
