@@ -6,17 +6,28 @@
 //!   observations per second and the latency from an observation's receipt
 //!   to the publication of the first estimate that used it.
 //!
-//! Options: `--quick` (shorter runs), `--only NAME` (triangulation | service).
+//! - tracker: the source tracker's per-DoA update, in order and with late DoAs;
+//! - planner: one planning cycle for 2, 3 and 8 robots.
+//!
+//! Options: `--quick` (shorter runs), `--only NAME` (triangulation | tracker | planner | service).
 
 use std::hint::black_box;
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
-use nalgebra::{Isometry3, Point3, Unit, Vector3};
+use nalgebra::{Isometry3, Matrix3, Point3, Unit, Vector3};
+use rand::SeedableRng;
+use rand_chacha::ChaCha8Rng;
+use rand_distr::{Distribution, StandardNormal};
 use soundmap_proto::wire::robot_link_client::RobotLinkClient;
 use soundmap_proto::wire::robot_message::Msg as Up;
 use soundmap_proto::{ArrayInfo, Hello, Observation, RobotId, Stamp, TrackedDoa, wire};
 use soundmap_server::clock::SystemClock;
+use soundmap_server::planner::{
+    PlanOutcome, Planner, PlannerConfig, PlannerInput, RobotState, SourceEstimate,
+};
+use soundmap_server::ray::tangent_basis;
+use soundmap_server::tracking::{InitOutcome, SourceTracker, TrackerConfig};
 use soundmap_server::triangulation::pair::paper_ray_to_ray;
 use soundmap_server::{CoordinatorConfig, Ray, TriangulationConfig, service, triangulate};
 
@@ -83,6 +94,141 @@ fn bench_triangulation(quick: bool) {
         "| 128 rays: IRLS least squares + Levenberg–Marquardt (Cauchy) with covariance and gate | {lm128:.0} |"
     );
     println!("pair / paper ratio: {:.1}×; target for the pair: < 1000 ns\n", pair / paper);
+}
+
+/// 3 robots at 20 Hz each (60 DoAs/s) watching a source walking a 2 m circle at
+/// 0.5 m/s, DoAs with σ = 3°: (stamp, robot, ray), in stamp order.
+fn tracker_doas(seconds: f64) -> Vec<(Stamp, u32, Ray)> {
+    let mut rng = ChaCha8Rng::seed_from_u64(7);
+    let sigma = 3f64.to_radians();
+    let robots = [Point3::new(-3.0, 0.0, 0.5), Point3::new(3.0, 0.5, 0.5), Point3::new(0.0, 3.5, 0.5)];
+    let t0 = Stamp::from_ns(1_767_225_600_000_000_000);
+    let mut out = Vec::new();
+    for k in 0..(seconds * 20.0) as usize {
+        for (i, o) in robots.iter().enumerate() {
+            let t = k as f64 / 20.0 + i as f64 * 0.0167;
+            let a = 0.25 * t;
+            let source = Point3::new(2.0 * a.cos(), 2.0 * a.sin(), 1.2);
+            let d = Unit::new_normalize(source - o);
+            let (b1, b2) = tangent_basis(&d);
+            let (e1, e2): (f64, f64) = (StandardNormal.sample(&mut rng), StandardNormal.sample(&mut rng));
+            let direction = Unit::new_normalize(d.into_inner() + (b1 * e1 + b2 * e2) * sigma);
+            out.push((
+                t0.plus_secs(t),
+                i as u32,
+                Ray { origin: *o, direction, sigma_rad: sigma, origin_sigma_m: 0.0 },
+            ));
+        }
+    }
+    out
+}
+
+fn bench_tracker(quick: bool) {
+    let doas = tracker_doas(if quick { 20.0 } else { 120.0 });
+    let mut start = SourceTracker::new(TrackerConfig::default());
+    let init = start.initialize(doas[0].0, Point3::new(2.0, 0.0, 1.2), Matrix3::identity() * 0.04);
+    assert!(matches!(init, InitOutcome::Started { .. }));
+    // Arrival order: 1 DoA in 16 arrives 0.25 s late (inserted into the lag buffer, the later ones re-run).
+    let late_ns = 250_000_000;
+    let mut late: Vec<_> = doas
+        .iter()
+        .enumerate()
+        .map(|(k, d)| (d.0.plus_ns(if k % 16 == 8 { late_ns } else { 0 }), *d))
+        .collect();
+    late.sort_by_key(|(arrival, _)| *arrival);
+    let late: Vec<_> = late.into_iter().map(|(_, d)| d).collect();
+    println!("## source tracker (one thread; 3 robots × 20 Hz, σ 3°, moving source, default settings)");
+    println!("| DoA arrival | ns per update (mean) | applied |");
+    println!("|---|---|---|");
+    let mut per_update = Vec::new();
+    for (name, order) in [("in stamp order", &doas), ("1 in 16 arriving 0.25 s late", &late)] {
+        let mut applied = 0;
+        let per = time_per_call(if quick { 5 } else { 20 }, 1, |_| {
+            let mut t = start.clone();
+            for (stamp, robot, ray) in order.iter() {
+                black_box(t.update(*stamp, *robot, ray));
+            }
+            applied = t.estimate().map_or(0, |e| e.counts.applied);
+        }) / order.len() as f64;
+        per_update.push(per);
+        println!("| {name} | {per:.0} | {applied} of {} |", order.len());
+    }
+    // A DoA 0.25 s late precedes ~15 buffered DoAs (60/s), which are re-run after it.
+    let extra = (per_update[1] - per_update[0]) * 16.0;
+    println!(
+        "extra cost of one late DoA (insertion and re-running the ~15 after it): {:.1} µs\n",
+        extra / 1e3
+    );
+}
+
+fn rect(x0: f64, y0: f64, x1: f64, y1: f64) -> Vec<[f64; 2]> {
+    vec![[x0, y0], [x1, y0], [x1, y1], [x0, y1]]
+}
+
+fn planner_robot(k: usize, x: f64, y: f64) -> RobotState {
+    RobotState {
+        id: RobotId::parse(&format!("r{k}"), "id").expect("valid id"),
+        map_from_base: Isometry3::translation(x, y, 0.0),
+        base_from_array: Isometry3::translation(0.0, 0.0, 0.5),
+        sigma_rad: 3f64.to_radians(),
+        active_goal: None,
+    }
+}
+
+fn bench_planner(quick: bool) {
+    let mut convex = PlannerConfig::default();
+    convex.free_space.room = rect(-6.0, -5.0, 6.0, 5.0);
+    convex.free_space.obstacles = vec![rect(2.5, 2.0, 3.5, 3.0), rect(-3.5, -3.0, -2.5, -2.0)];
+    // Obstacles ignored by the pattern search and a block over the target wedges: the sampling fallback.
+    let mut fallback = PlannerConfig { blocked_spot_penalty_m: 0.0, ..convex.clone() };
+    fallback.free_space.obstacles = vec![rect(-0.5, 0.7, 4.0, 4.5)];
+    let source = SourceEstimate::at(Point3::new(0.0, 0.0, 1.2), 0.1);
+    let iters = if quick { 50 } else { 300 };
+    println!("## planner (one thread; one planning cycle, planner reset before each)");
+    println!("| robots | case | ms per cycle | outcome |");
+    println!("|---|---|---|---|");
+    for (case, cfg) in [("re-plan, convex QP/SOCP", &convex), ("re-plan, sampling fallback", &fallback)] {
+        for n in [2usize, 3, 8] {
+            // Clustered 4.6–5.5 m from the source: θ out of band, every robot must move.
+            let robots =
+                (0..n).map(|k| planner_robot(k, 4.6 + 0.9 * (k / 4) as f64, -0.4 + 0.8 * (k % 4) as f64));
+            let input = PlannerInput { source: source.clone(), robots: robots.collect() };
+            let mut planner = Planner::new(cfg.clone()).expect("valid config");
+            let outcome = match planner.plan(Stamp::ZERO, &input) {
+                PlanOutcome::Planned(goals) => {
+                    format!(
+                        "{} goals{}",
+                        goals.len(),
+                        if goals.iter().any(|g| g.used_fallback) { ", fallback" } else { "" }
+                    )
+                }
+                other => panic!("{case}, {n} robots: {other:?}"),
+            };
+            let per = time_per_call(3, iters, |_| {
+                planner.reset();
+                black_box(planner.plan(Stamp::ZERO, black_box(&input)));
+            });
+            println!("| {n} | {case} | {:.3} | {outcome} |", per / 1e6);
+        }
+    }
+    // The common case once the robots are placed: every estimate asks, the planner holds.
+    for n in [2usize, 3, 8] {
+        let robots = (0..n).map(|k| {
+            // Bearings k·180°/n: Σ e^{2jφ} = 0, a D-optimal spread for any n (theory §3.2).
+            let a = k as f64 * std::f64::consts::PI / n as f64;
+            planner_robot(k, 2.0 * a.cos(), 2.0 * a.sin())
+        });
+        let input = PlannerInput { source: source.clone(), robots: robots.collect() };
+        let mut planner = Planner::new(convex.clone()).expect("valid config");
+        let outcome = planner.plan(Stamp::ZERO, &input);
+        assert!(matches!(outcome, PlanOutcome::Hold(_)), "{outcome:?}");
+        let per = time_per_call(3, iters, |_| {
+            planner.reset();
+            black_box(planner.plan(Stamp::ZERO, black_box(&input)));
+        });
+        println!("| {n} | hold (optimal spread at 2 m) | {:.3} | hold |", per / 1e6);
+    }
+    println!("targets: < 2 ms for 2 robots, < 20 ms for 8\n");
 }
 
 fn hello(i: usize) -> wire::RobotMessage {
@@ -268,6 +414,7 @@ fn bench_service(quick: bool) {
                 let listener = tokio::net::TcpListener::bind("127.0.0.1:0").await.expect("bind");
                 let mut config = CoordinatorConfig::default();
                 config.liveness.tick_ms = 0;
+                config.tracking.enabled = std::env::var("NO_TRACKING").is_err();
                 service::start(config, Arc::new(SystemClock), listener).await.expect("start")
             });
             let f = client_rt.block_on(drive(running.local_addr, running.metrics.clone(), n, load, seconds));
@@ -291,6 +438,12 @@ fn main() {
     let run = |name: &str| only.as_deref().is_none_or(|o| o == name);
     if run("triangulation") {
         bench_triangulation(quick);
+    }
+    if run("tracker") {
+        bench_tracker(quick);
+    }
+    if run("planner") {
+        bench_planner(quick);
     }
     if run("service") {
         bench_service(quick);

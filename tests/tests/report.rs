@@ -522,5 +522,7 @@ fn a_realistic_comparison_renders_and_favours_the_band() {
         off.time_in_band_ratio
     );
     assert!(on.time_to_band_s.is_some_and(|t| t > 0.0 && t < 20.0), "{:?}", on.time_to_band_s);
-    assert!(!format_comparison_table(&on, &off, &dir).is_empty());
+    let table = format_comparison_table(&on, &off, &dir);
+    println!("{table}");
+    assert!(table.contains("triangulation RSE p95"), "{table}");
 }
