@@ -49,7 +49,7 @@ impl ThetaSource {
 
 /// θ of a row for statistics (degrees): the true θ when known, else the published one.
 pub fn theta_for_stats_deg(row: &TimelineRow) -> f64 {
-    row.theta_deg
+    row.true_theta_deg.unwrap_or(row.theta_deg)
 }
 
 /// Whether `theta_deg` lies in the closed band `[lo, hi]` (degrees); NaN is out.

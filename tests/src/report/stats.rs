@@ -7,7 +7,7 @@
 ///
 /// A row is weighted by the time to the next row, capped here, so a gap in the
 /// estimates (nothing published) does not count as time in (or out of) the band.
-pub const TIME_WEIGHT_CAP_S: f64 = 100.0;
+pub const TIME_WEIGHT_CAP_S: f64 = 1.0;
 
 /// The `p`-quantile (`p` in 0–1) of `values` by linear interpolation between
 /// closest ranks (the common "type 7" definition, NumPy's default): with the
