@@ -67,6 +67,20 @@ pub struct TrackedDirection {
     pub confirmed: bool,
 }
 
+impl TrackedDirection {
+    /// The DoA as the agent sends it to the coordinator (activity clamped to
+    /// [0, 1]; σ dropped when not a positive finite number, capped at π).
+    pub fn to_doa(&self) -> soundmap_proto::TrackedDoa {
+        let sigma = self.angular_sigma_rad;
+        soundmap_proto::TrackedDoa {
+            track_id: self.track_id,
+            direction_in_array: self.direction,
+            activity: self.activity.clamp(0.0, 1.0),
+            angular_sigma_rad: (sigma.is_finite() && sigma > 0.0).then_some(sigma.min(std::f64::consts::PI)),
+        }
+    }
+}
+
 #[derive(Clone, Debug)]
 struct Track {
     id: u64,

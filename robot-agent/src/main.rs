@@ -22,7 +22,7 @@ use soundmap_agent::config::{self, AgentConfig, DoaSource, OdasInput, PoseSource
 use soundmap_agent::link::{Link, LinkHandle};
 use soundmap_agent::navigator::JsonLinesNavigator;
 use soundmap_agent::odas::{self, LiveStart, OdasTiming};
-use soundmap_agent::pipeline::{FrameResult, Pipeline, PipelineConfig, TrackedDirection};
+use soundmap_agent::pipeline::{FrameResult, Pipeline, PipelineConfig};
 use soundmap_agent::pose::{self, Attached, Attacher, PoseBuffer, PoseTimeMapping, StampedPose};
 use soundmap_proto::{ArrayInfo, Hello, Observation, Stamp, TrackedDoa};
 use tokio::sync::mpsc;
@@ -279,16 +279,6 @@ impl SilenceFilter {
         let keep = !(doas.is_empty() && self.previous_empty);
         self.previous_empty = doas.is_empty();
         keep
-    }
-}
-
-fn to_doa(t: &TrackedDirection) -> TrackedDoa {
-    let sigma = t.angular_sigma_rad;
-    TrackedDoa {
-        track_id: t.track_id,
-        direction_in_array: t.direction,
-        activity: t.activity.clamp(0.0, 1.0),
-        angular_sigma_rad: (sigma.is_finite() && sigma > 0.0).then_some(sigma.min(std::f64::consts::PI)),
     }
 }
 
@@ -619,7 +609,7 @@ fn spawn_dsp(
             let mut silence = SilenceFilter::new();
             while let Ok((stamp, block)) = full_rx.recv() {
                 let r = pipeline.process_hop(stamp, &block);
-                let doas: Vec<TrackedDoa> = r.tracks.iter().filter(|t| t.confirmed).map(to_doa).collect();
+                let doas: Vec<TrackedDoa> = r.confirmed_doas();
                 let frame_stamp = r.stamp;
                 let _ = free_tx.send(block);
                 if !silence.keep(&doas) {

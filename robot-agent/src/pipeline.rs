@@ -63,6 +63,13 @@ pub struct FrameResult {
     pub tracks: Vec<TrackedDirection>,
 }
 
+impl FrameResult {
+    /// The confirmed tracks as DoAs to send to the coordinator.
+    pub fn confirmed_doas(&self) -> Vec<soundmap_proto::TrackedDoa> {
+        self.tracks.iter().filter(|t| t.confirmed).map(TrackedDirection::to_doa).collect()
+    }
+}
+
 /// STFT → SRP-PHAT → tracker for one array.
 #[derive(Debug)]
 pub struct Pipeline {

@@ -24,7 +24,7 @@ use soundmap_agent::link::CoordinatorEvent;
 use soundmap_agent::pipeline::{Pipeline, PipelineConfig};
 use soundmap_agent::pose::tum::{PoseTimeMapping, read_tum};
 use soundmap_agent::pose::{PoseBuffer, PoseBufferConfig, StampedPose};
-use soundmap_proto::{ArrayInfo, CommandAck, Hello, Observation, RobotId, Stamp, TrackedDoa};
+use soundmap_proto::{ArrayInfo, CommandAck, Hello, Observation, RobotId, Stamp};
 use soundmap_server::CoordinatorConfig;
 
 use crate::error::SimError;
@@ -269,17 +269,7 @@ async fn replay_async(args: &ReplayArgs) -> Result<RunRecord, SimError> {
         let fs = r.pipeline.sample_rate_hz() as u64;
         let result = r.pipeline.process_hop(first, &r.hop);
         let stamp = result.stamp;
-        let doas: Vec<TrackedDoa> = result
-            .tracks
-            .iter()
-            .filter(|t| t.confirmed)
-            .map(|t| TrackedDoa {
-                track_id: t.track_id,
-                direction_in_array: t.direction,
-                activity: t.activity.clamp(0.0, 1.0),
-                angular_sigma_rad: Some(t.angular_sigma_rad.clamp(1e-4, std::f64::consts::PI)),
-            })
-            .collect();
+        let doas = result.confirmed_doas();
         // The coordinator's clock: the end of the simulator-sized block holding this hop.
         let block = BLOCK_LEN as u64;
         let block_end = (r.samples_done / block + 1) * block;

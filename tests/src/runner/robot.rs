@@ -235,17 +235,7 @@ impl SimRobot {
             }
             on_audio(&self.hop);
             let r = self.pipeline.process_hop(stamp_of(first_sample + (h * hop_len) as u64), &self.hop);
-            let doas = r
-                .tracks
-                .iter()
-                .filter(|t| t.confirmed)
-                .map(|t| TrackedDoa {
-                    track_id: t.track_id,
-                    direction_in_array: t.direction,
-                    activity: t.activity.clamp(0.0, 1.0),
-                    angular_sigma_rad: Some(t.angular_sigma_rad.clamp(1e-4, std::f64::consts::PI)),
-                })
-                .collect();
+            let doas = r.confirmed_doas();
             self.hops.push(HopDoas { stamp: r.stamp, doas });
         }
         Ok(())
