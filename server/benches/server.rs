@@ -9,7 +9,9 @@
 //! - tracker: the source tracker's per-DoA update, in order and with late DoAs;
 //! - planner: one planning cycle for 2, 3 and 8 robots.
 //!
-//! Options: `--quick` (shorter runs), `--only NAME` (triangulation | tracker | planner | service).
+//! Options: `--quick` (shorter runs), `--only NAME` (triangulation | tracker |
+//! planner | service), `--no-tracking` (the service without its source tracker,
+//! to see the tracker's share).
 
 use std::hint::black_box;
 use std::sync::Arc;
@@ -385,7 +387,7 @@ async fn drive(
     }
 }
 
-fn bench_service(quick: bool) {
+fn bench_service(quick: bool, tracking: bool) {
     // The coordinator and the load generator run on separate runtimes (as they
     // would in separate processes); the coordinator task has its own thread.
     let runtime = |name: &str| {
@@ -399,7 +401,8 @@ fn bench_service(quick: bool) {
     let (server_rt, client_rt) = (runtime("coordinator-rt"), runtime("load-rt"));
     let seconds = if quick { 1.0 } else { 4.0 };
     println!(
-        "## coordinator service over loopback (coordinator: 2 worker threads + its task's thread; load generator: 2 threads in the same process)"
+        "## coordinator service over loopback (coordinator: 2 worker threads + its task's thread; load generator: 2 threads in the same process; source tracker {})",
+        if tracking { "on" } else { "off" }
     );
     println!(
         "| robot streams | load | observations/s acknowledged | p50 latency | p99 latency | max | samples |"
@@ -414,7 +417,7 @@ fn bench_service(quick: bool) {
                 let listener = tokio::net::TcpListener::bind("127.0.0.1:0").await.expect("bind");
                 let mut config = CoordinatorConfig::default();
                 config.liveness.tick_ms = 0;
-                config.tracking.enabled = std::env::var("NO_TRACKING").is_err();
+                config.tracking.enabled = tracking;
                 service::start(config, Arc::new(SystemClock), listener).await.expect("start")
             });
             let f = client_rt.block_on(drive(running.local_addr, running.metrics.clone(), n, load, seconds));
@@ -446,6 +449,6 @@ fn main() {
         bench_planner(quick);
     }
     if run("service") {
-        bench_service(quick);
+        bench_service(quick, !args.iter().any(|a| a == "--no-tracking"));
     }
 }

@@ -195,6 +195,7 @@ impl Coordinator {
         if let Some(id) = self.connections.remove(&conn) {
             if let Some(e) = self.robots.get_mut(&id) {
                 e.conn = None;
+                self.tracking.forget_robot(e.index);
             }
             self.liveness.insert(id, Liveness::Disconnected);
         }
@@ -276,6 +277,7 @@ impl Coordinator {
         let index = entry.index;
         entry.remember(stored, history_ns);
         self.counters.observations += 1;
+        self.tracking.note_stamp(index, obs.stamp);
         if let Some(ray) = dominant {
             self.tracking.push(obs.stamp, index, ray);
             self.pending = Some(self.pending.map_or(obs.stamp, |p| p.max(obs.stamp)));
@@ -305,7 +307,7 @@ impl Coordinator {
     /// Housekeeping: applies queued DoAs to the tracker, checks its lifecycle,
     /// and returns the robots whose liveness changed since the last tick.
     pub fn tick(&mut self, now: Stamp) -> Vec<LivenessChange> {
-        self.tracking.flush();
+        self.tracking.flush(now);
         self.tracking.maintain(now);
         let stale_after_ns = self.stale_after_ns();
         let mut changes = Vec::new();
@@ -337,7 +339,7 @@ impl Coordinator {
         if let Some((e, newest)) = &aligned {
             self.tracking.start_if_needed(*newest, &e.triangulation);
         }
-        self.tracking.flush();
+        self.tracking.flush(now);
         let (mut estimate, _) = aligned?;
         estimate.filtered = self.tracking.estimate_at(estimate.stamp);
         estimate.source_id = self.tracking.live_track_id().unwrap_or(0);

@@ -5,10 +5,19 @@
 //!
 //! DoAs are queued as observations arrive and applied in stamp order once per
 //! batch ([`Tracking::flush`], called by the coordinator's `estimate` and
-//! `tick`). The tracker's fixed-lag buffer makes the result independent of the
-//! order; sorting only spares it re-running the DoAs that a late one precedes.
-//! It also lets DoAs that arrive in the batch that starts a track, but are
-//! stamped after its start, update it.
+//! `tick`) up to a *watermark*: the oldest of the robots' latest observation
+//! stamps. Each robot's stamps never decrease (validation enforces it), so no
+//! DoA can arrive later stamped below the watermark: applied this way, DoAs
+//! never arrive late at the tracker and it never re-runs its lag buffer
+//! (which, with many robots streaming fast, costs far more than the updates).
+//! The watermark waits at most [`MAX_HOLD_MS`] for a slow or silent robot.
+//! The tracker's fixed-lag buffer still applies exactly whatever arrives late
+//! anyway (a robot seen for the first time, one that waited longer).
+//! Queuing also lets DoAs that arrive in the batch that starts a track, but
+//! are stamped after its start, update it.
+
+use std::cmp::{Ordering, Reverse};
+use std::collections::BinaryHeap;
 
 use soundmap_proto::Stamp;
 
@@ -29,13 +38,52 @@ pub struct TrackingCounters {
     pub unused: u64,
 }
 
+/// A queued DoA, ordered by stamp then arrival.
+#[derive(Debug)]
+struct Queued {
+    stamp: Stamp,
+    arrival: u64,
+    robot: u32,
+    ray: Ray,
+}
+
+impl PartialEq for Queued {
+    fn eq(&self, other: &Self) -> bool {
+        self.cmp(other) == Ordering::Equal
+    }
+}
+
+impl Eq for Queued {}
+
+impl PartialOrd for Queued {
+    fn partial_cmp(&self, other: &Self) -> Option<Ordering> {
+        Some(self.cmp(other))
+    }
+}
+
+impl Ord for Queued {
+    fn cmp(&self, other: &Self) -> Ordering {
+        (self.stamp, self.arrival).cmp(&(other.stamp, other.arrival))
+    }
+}
+
+/// Longest a queued DoA waits for slower robots before it is applied (ms):
+/// the filtered state is at most this much behind the newest DoA.
+pub const MAX_HOLD_MS: i64 = 100;
+
 /// The coordinator's tracker and its queue of DoAs.
 #[derive(Debug)]
 pub struct Tracking {
     /// `None` when `[tracking] enabled = false`.
     tracker: Option<SourceTracker>,
-    /// DoAs not yet applied: (stamp, robot index, ray).
-    queue: Vec<(Stamp, u32, Ray)>,
+    /// DoAs not yet applied, oldest on top.
+    queue: BinaryHeap<Reverse<Queued>>,
+    /// Arrival counter (equal stamps are applied in arrival order).
+    arrivals: u64,
+    /// Latest observation stamp per robot index.
+    latest: Vec<Option<Stamp>>,
+    /// Newest observation stamp of any robot.
+    newest: Option<Stamp>,
     counters: TrackingCounters,
 }
 
@@ -44,7 +92,10 @@ impl Tracking {
     pub fn new(config: &TrackerConfig) -> Self {
         Tracking {
             tracker: config.enabled.then(|| SourceTracker::new(config.clone())),
-            queue: Vec::new(),
+            queue: BinaryHeap::new(),
+            arrivals: 0,
+            latest: Vec::new(),
+            newest: None,
             counters: TrackingCounters::default(),
         }
     }
@@ -59,11 +110,41 @@ impl Tracking {
         self.counters
     }
 
+    /// Robot `robot` sent an observation stamped `stamp` (with or without DoAs):
+    /// it will send nothing older.
+    pub fn note_stamp(&mut self, robot: u32, stamp: Stamp) {
+        if self.tracker.is_none() {
+            return;
+        }
+        let i = robot as usize;
+        if self.latest.len() <= i {
+            self.latest.resize(i + 1, None);
+        }
+        self.latest[i] = Some(self.latest[i].map_or(stamp, |l| l.max(stamp)));
+        self.newest = Some(self.newest.map_or(stamp, |n| n.max(stamp)));
+    }
+
+    /// Robot `robot` is gone (stream closed): the watermark no longer waits for it.
+    pub fn forget_robot(&mut self, robot: u32) {
+        if let Some(l) = self.latest.get_mut(robot as usize) {
+            *l = None;
+        }
+    }
+
     /// Queues the dominant DoA ray (map frame) of robot `robot` stamped `stamp`.
     pub fn push(&mut self, stamp: Stamp, robot: u32, ray: Ray) {
         if self.tracker.is_some() {
-            self.queue.push((stamp, robot, ray));
+            self.arrivals += 1;
+            self.queue.push(Reverse(Queued { stamp, arrival: self.arrivals, robot, ray }));
         }
+    }
+
+    /// Stamp up to which queued DoAs can be applied at `now` (see the module docs).
+    fn watermark(&self, now: Stamp) -> Option<Stamp> {
+        let newest = self.newest?;
+        let hold_ns = MAX_HOLD_MS * 1_000_000;
+        let slowest = self.latest.iter().flatten().min().copied().unwrap_or(newest);
+        Some(slowest.max(newest.plus_ns(-hold_ns)).max(newest.min(now.plus_ns(-hold_ns))))
     }
 
     /// Starts a track from `triangulation` (whose newest ray is stamped `stamp`)
@@ -78,13 +159,13 @@ impl Tracking {
         Some(outcome)
     }
 
-    /// Applies the queued DoAs in stamp order.
-    pub fn flush(&mut self) {
+    /// Applies the queued DoAs up to the watermark at `now`, in stamp order.
+    pub fn flush(&mut self, now: Stamp) {
+        let Some(watermark) = self.watermark(now) else { return };
         let Some(tracker) = self.tracker.as_mut() else { return };
-        // Stable: equal stamps keep their arrival order.
-        self.queue.sort_by_key(|d| d.0);
-        for (stamp, robot, ray) in self.queue.drain(..) {
-            match tracker.update(stamp, robot, &ray) {
+        while self.queue.peek().is_some_and(|q| q.0.stamp <= watermark) {
+            let Some(Reverse(q)) = self.queue.pop() else { break };
+            match tracker.update(q.stamp, q.robot, &q.ray) {
                 UpdateOutcome::Applied { .. } => self.counters.applied += 1,
                 UpdateOutcome::Gated { .. } => self.counters.gated += 1,
                 _ => self.counters.unused += 1,
