@@ -65,18 +65,24 @@ pub fn max(values: &[f64]) -> Option<f64> {
     values.iter().copied().filter(|v| v.is_finite()).reduce(f64::max)
 }
 
-/// Time each row stands for (s): the time to the next row, capped at
-/// [`TIME_WEIGHT_CAP_S`]; the last row gets the time to `end_s` (the run's
-/// duration), capped the same way. Negative gaps (unsorted rows) count as 0.
+/// Time each row stands for (s): the time to the next row with a later stamp,
+/// capped at [`TIME_WEIGHT_CAP_S`]; the last stamp gets the time to `end_s`
+/// (the run's duration), capped the same way. Rows sharing one stamp (several
+/// estimates published together) share that time equally. Expects rows in time
+/// order; a negative gap counts as 0.
 pub fn time_weights(times_s: &[f64], end_s: f64) -> Vec<f64> {
     let n = times_s.len();
-    (0..n)
-        .map(|i| {
-            let next = if i + 1 < n { times_s[i + 1] } else { end_s };
-            let gap = next - times_s[i];
-            if gap.is_finite() { gap.clamp(0.0, TIME_WEIGHT_CAP_S) } else { 0.0 }
-        })
-        .collect()
+    let mut weights = vec![0.0; n];
+    let mut start = 0;
+    while start < n {
+        let stop = (start..n).find(|&j| times_s[j] != times_s[start]).unwrap_or(n);
+        let next = if stop < n { times_s[stop] } else { end_s };
+        let gap = next - times_s[start];
+        let gap = if gap.is_finite() { gap.clamp(0.0, TIME_WEIGHT_CAP_S) } else { 0.0 };
+        weights[start..stop].fill(gap / (stop - start) as f64);
+        start = stop;
+    }
+    weights
 }
 
 /// Share of the weight whose flag is set: `Σ w·[flag] / Σ w`.
@@ -129,6 +135,8 @@ mod tests {
             assert!((a - b).abs() < 1e-12, "{w:?}");
         }
         assert_eq!(time_weights(&[2.0, 2.0], 2.0), vec![0.0, 0.0]);
+        // Two rows at 1 s share the 0.5 s to the next stamp.
+        assert_eq!(time_weights(&[0.0, 1.0, 1.0, 1.5], 1.5), vec![1.0, 0.25, 0.25, 0.0]);
         assert_eq!(weighted_ratio(&[0.0, 0.0], [true, false]), Some(0.5));
         assert_eq!(weighted_ratio(&[], []), None);
         assert_eq!(weighted_ratio(&[1.0, 3.0], [true, false]), Some(0.25));

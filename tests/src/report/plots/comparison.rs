@@ -6,8 +6,8 @@ use plotters::coord::Shift;
 use plotters::prelude::*;
 
 use super::style::{
-    BAND_FILL, axis_desc_style, label_style, polylines, rse_axis_desc, rse_axis_top, time_axis_end,
-    title_style,
+    BAND_FILL, axis_desc_style, label_style, line_width, polylines, rse_axis_desc, rse_axis_top,
+    time_axis_end, title_style,
 };
 use super::{Figure, PlotResult};
 use crate::report::derived::Derived;
@@ -79,7 +79,8 @@ impl Figure for ComparisonTheta<'_> {
         for (r, d, colour, name) in self.runs() {
             let samples = r.rows.iter().zip(&d.theta_deg).map(|(row, t)| (row.t_s, Some(*t)));
             for (j, line) in polylines(samples, 0.0, 180.0).into_iter().enumerate() {
-                let series = chart.draw_series(LineSeries::new(line, colour.stroke_width(2)))?;
+                let series = chart
+                    .draw_series(LineSeries::new(line, colour.stroke_width(line_width(r.rows.len()))))?;
                 if j == 0 {
                     series.label(format!("θ (°), {name}")).legend(move |(x, y)| {
                         PathElement::new(vec![(x, y), (x + 24, y)], colour.stroke_width(3))
@@ -117,7 +118,8 @@ impl Figure for ComparisonTheta<'_> {
         for (r, d, colour, name) in self.runs() {
             let samples = r.rows.iter().zip(&d.rse_m).map(|(row, e)| (row.t_s, *e));
             for (j, line) in polylines(samples, 0.0, rse_top).into_iter().enumerate() {
-                let series = chart.draw_series(LineSeries::new(line, colour.stroke_width(2)))?;
+                let series = chart
+                    .draw_series(LineSeries::new(line, colour.stroke_width(line_width(r.rows.len()))))?;
                 if j == 0 {
                     labelled = true;
                     series.label(format!("RSE (m), {name}")).legend(move |(x, y)| {

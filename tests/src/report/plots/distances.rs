@@ -5,7 +5,7 @@ use plotters::coord::Shift;
 use plotters::prelude::*;
 
 use super::style::{
-    RSE_RED, axis_desc_style, label_style, polylines, robot_colour, rse_axis_desc, rse_axis_top,
+    RSE_RED, axis_desc_style, label_style, line_width, polylines, robot_colour, rse_axis_desc, rse_axis_top,
     time_axis_end, title_style,
 };
 use super::{Figure, PlotResult, note_centred};
@@ -61,13 +61,14 @@ impl Figure for DistancesRse<'_> {
             .label_style(label_style())
             .draw()?;
 
+        let width = line_width(r.rows.len());
         let mut labelled = false;
         for k in 0..distance_columns(r) {
             let colour = robot_colour(k);
             let id = r.robot_ids.get(k).map_or_else(|| format!("robot {}", k + 1), |id| id.clone());
             let samples = r.rows.iter().map(|row| (row.t_s, row.distances_m.get(k).copied()));
             for (j, line) in polylines(samples, 0.0, d_top).into_iter().enumerate() {
-                let series = chart.draw_series(LineSeries::new(line, colour.stroke_width(2)))?;
+                let series = chart.draw_series(LineSeries::new(line, colour.stroke_width(width)))?;
                 if j == 0 {
                     labelled = true;
                     series.label(format!("d{} (m), {id}", k + 1)).legend(move |(x, y)| {
@@ -78,7 +79,7 @@ impl Figure for DistancesRse<'_> {
         }
         let samples = r.rows.iter().zip(&self.derived.rse_m).map(|(row, rse)| (row.t_s, *rse));
         for (j, line) in polylines(samples, 0.0, rse_top).into_iter().enumerate() {
-            let series = chart.draw_secondary_series(LineSeries::new(line, RSE_RED.stroke_width(2)))?;
+            let series = chart.draw_secondary_series(LineSeries::new(line, RSE_RED.stroke_width(width)))?;
             if j == 0 {
                 labelled = true;
                 series

@@ -113,6 +113,25 @@ impl Figure for MapFigure<'_> {
             }
         }
 
+        // Estimates under the truth and the robots, so those stay visible.
+        let mut outside = 0usize;
+        let mut without_truth = 0usize;
+        let estimates =
+            r.rows.iter().zip(&self.derived.rse_m).filter_map(|(row, rse)| Some((row.estimate?, *rse)));
+        let estimates: Vec<_> = estimates.filter(|(p, _)| p.x.is_finite() && p.y.is_finite()).collect();
+        // Smaller dots when there are many, so the picture is not one blob.
+        let radius = match estimates.len() {
+            0..=500 => 4,
+            501..=3000 => 3,
+            _ => 2,
+        };
+        chart.draw_series(estimates.iter().map(|(p, rse)| {
+            let (x, y) = (p.x.clamp(x0, x1), p.y.clamp(y0, y1));
+            outside += usize::from(x != p.x || y != p.y);
+            without_truth += usize::from(rse.is_none());
+            Circle::new((x, y), radius, rse.map_or(NO_TRUTH, rse_colour).filled())
+        }))?;
+
         for (k, robot) in r.robots.iter().enumerate() {
             let colour = robot_colour(k);
             let path: Vec<(f64, f64)> = robot.samples.iter().map(|s| (s.1, s.2)).collect();
@@ -136,18 +155,6 @@ impl Figure for MapFigure<'_> {
                 + Cross::new((0, 0), 5, SOURCE.stroke_width(2));
             chart.draw_series(std::iter::once(marker))?;
         }
-
-        let mut outside = 0usize;
-        let mut without_truth = 0usize;
-        let estimates =
-            r.rows.iter().zip(&self.derived.rse_m).filter_map(|(row, rse)| Some((row.estimate?, *rse)));
-        let estimates: Vec<_> = estimates.filter(|(p, _)| p.x.is_finite() && p.y.is_finite()).collect();
-        chart.draw_series(estimates.iter().map(|(p, rse)| {
-            let (x, y) = (p.x.clamp(x0, x1), p.y.clamp(y0, y1));
-            outside += usize::from(x != p.x || y != p.y);
-            without_truth += usize::from(rse.is_none());
-            Circle::new((x, y), 4, rse.map_or(NO_TRUTH, rse_colour).filled())
-        }))?;
 
         legend(&panel, r, outside, without_truth)
     }
@@ -180,6 +187,8 @@ fn legend<DB: DrawingBackend>(
         panel.draw(&Rectangle::new([(x, y - 9), (x + 28, y + 9)], FLOOR.filled()))?;
         panel.draw(&Rectangle::new([(x, y - 9), (x + 28, y + 9)], BLACK.stroke_width(2)))?;
         row(&mut y, "floor")?;
+    }
+    if r.room.as_ref().is_some_and(|room| !room.obstacles.is_empty()) {
         panel.draw(&Rectangle::new([(x, y - 9), (x + 28, y + 9)], OBSTACLE.filled()))?;
         row(&mut y, "obstacle")?;
     }
@@ -192,6 +201,8 @@ fn legend<DB: DrawingBackend>(
         row(&mut y, "robot start")?;
         panel.draw(&Rectangle::new([(x + 8, y - 6), (x + 20, y + 6)], BLACK.filled()))?;
         row(&mut y, "robot end")?;
+    }
+    if r.robots.iter().any(|robot| !robot.goals.is_empty()) {
         panel.draw(&Cross::new((x + 14, y), 7, BLACK.stroke_width(3)))?;
         row(&mut y, "commanded goal")?;
     }

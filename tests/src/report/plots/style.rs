@@ -134,6 +134,18 @@ pub fn polylines(
     lines
 }
 
+/// Most samples a time series may have to be drawn 2 px wide.
+///
+/// Thick polylines are drawn with mitred joins, which spike at the sharp turns
+/// of a dense noisy series (hundreds of estimates per second); dense series are
+/// drawn 1 px wide.
+pub const THICK_LINE_MAX_POINTS: usize = 400;
+
+/// Stroke width (px) of a time series with `points` samples.
+pub fn line_width(points: usize) -> u32 {
+    if points <= THICK_LINE_MAX_POINTS { 2 } else { 1 }
+}
+
 /// End of the time axis (s): the run's duration or the last sample, at least 1 s.
 pub fn time_axis_end(duration_s: f64, last_t_s: Option<f64>) -> f64 {
     let end = duration_s.max(last_t_s.unwrap_or(0.0));

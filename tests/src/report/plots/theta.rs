@@ -5,8 +5,8 @@ use plotters::coord::Shift;
 use plotters::prelude::*;
 
 use super::style::{
-    BAND_FILL, RSE_RED, THETA_BLUE, axis_desc_style, label_style, polylines, rse_axis_desc, rse_axis_top,
-    time_axis_end, title_style,
+    BAND_FILL, RSE_RED, THETA_BLUE, axis_desc_style, label_style, line_width, polylines, rse_axis_desc,
+    rse_axis_top, time_axis_end, title_style,
 };
 use super::{Figure, PlotResult};
 use crate::report::derived::Derived;
@@ -84,7 +84,8 @@ impl Figure for ThetaRse<'_> {
         }
         let truth = r.rows.iter().map(|row| (row.t_s, row.true_theta_deg));
         for (j, line) in polylines(truth, 0.0, 180.0).into_iter().enumerate() {
-            let series = chart.draw_series(LineSeries::new(line, THETA_BLUE.stroke_width(2)))?;
+            let series = chart
+                .draw_series(LineSeries::new(line, THETA_BLUE.stroke_width(line_width(r.rows.len()))))?;
             if j == 0 {
                 series
                     .label("θ true (°)")
@@ -93,7 +94,10 @@ impl Figure for ThetaRse<'_> {
         }
         let rse = r.rows.iter().zip(&self.derived.rse_m).map(|(row, rse)| (row.t_s, *rse));
         for (j, line) in polylines(rse, 0.0, rse_top).into_iter().enumerate() {
-            let series = chart.draw_secondary_series(LineSeries::new(line, RSE_RED.stroke_width(2)))?;
+            let series = chart.draw_secondary_series(LineSeries::new(
+                line,
+                RSE_RED.stroke_width(line_width(r.rows.len())),
+            ))?;
             if j == 0 {
                 series
                     .label("RSE (m), right axis")
