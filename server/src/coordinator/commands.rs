@@ -107,9 +107,9 @@ impl CommandLog {
         }
     }
 
-    /// Marks the current command canceled by the coordinator.
+    /// Marks the current command canceled, unless it already ended.
     pub fn cancel(&mut self) {
-        if let Some((_, state)) = &mut self.current {
+        if let Some((_, state @ (None | Some(CommandState::Executing)))) = &mut self.current {
             *state = Some(CommandState::Canceled);
         }
     }
@@ -153,4 +153,85 @@ pub fn progress(entry: &mut RobotEntry, now: Stamp, p: &CommandProgress) -> Resu
         return Ok(());
     }
     Err(ServerError::UnknownCommand { field: "command_progress.command_id", command_id: p.command_id })
+}
+
+#[cfg(test)]
+mod tests {
+    use nalgebra::Point3;
+    use soundmap_proto::{ArrayInfo, Hello, RepositionReason};
+
+    use super::*;
+
+    fn entry() -> RobotEntry {
+        let hello = Hello {
+            robot_id: RobotId::parse("r", "id").unwrap(),
+            array: ArrayInfo {
+                base_from_array: Isometry3::identity(),
+                microphone_count: 4,
+                preset: None,
+                microphone_positions: vec![],
+            },
+            software_version: String::new(),
+        };
+        RobotEntry::new(hello, 0, 1, Stamp::ZERO)
+    }
+
+    fn command(id: u64, x: f64) -> RepositionCommand {
+        RepositionCommand {
+            command_id: id,
+            goal_map_from_base: Isometry3::translation(x, 0.0, 0.0),
+            look_at_in_map: Point3::origin(),
+            reason: RepositionReason::ThetaOutOfBand,
+            detail: String::new(),
+            deadline: Stamp::from_ns(10_000),
+            issued: Stamp::ZERO,
+        }
+    }
+
+    fn ack(id: u64, accepted: bool) -> CommandAck {
+        CommandAck { command_id: id, accepted, reason: String::new() }
+    }
+
+    fn report(id: u64, state: CommandState) -> CommandProgress {
+        CommandProgress { command_id: id, state, distance_remaining_m: None, detail: "stuck".into() }
+    }
+
+    #[test]
+    fn reports_follow_the_current_command_and_earlier_ones_are_ignored() {
+        let mut e = entry();
+        let now = Stamp::from_ns(100);
+        assert!(acknowledge(&mut e, now, &ack(1, true)).is_err(), "never issued");
+        e.commands.issue(command(1, 1.0));
+        assert_eq!(e.commands.active_goal(now).map(|g| g.translation.x), Some(1.0), "sent, not yet acked");
+        acknowledge(&mut e, now, &ack(1, true)).unwrap();
+        assert_eq!(e.commands.current.as_ref().unwrap().1, Some(CommandState::Executing));
+        e.commands.issue(command(2, 2.0));
+        // The replaced command ends CANCELED on the robot: accepted, changes nothing.
+        progress(&mut e, now, &report(1, CommandState::Canceled)).unwrap();
+        assert_eq!(e.commands.current.as_ref().unwrap().1, None);
+        assert_eq!(e.commands.active_goal(now).map(|g| g.translation.x), Some(2.0));
+        assert!(e.commands.active_goal(Stamp::from_ns(10_001)).is_none(), "deadline passed");
+        progress(&mut e, now, &report(2, CommandState::Succeeded)).unwrap();
+        assert!(e.commands.active_goal(now).is_none());
+        assert!(e.commands.cancellable().is_none());
+        assert!(matches!(
+            progress(&mut e, now, &report(7, CommandState::Executing)),
+            Err(ServerError::UnknownCommand { field: "command_progress.command_id", command_id: 7 })
+        ));
+    }
+
+    #[test]
+    fn refusals_and_failures_are_remembered() {
+        let mut e = entry();
+        e.commands.issue(command(1, 1.0));
+        acknowledge(&mut e, Stamp::from_ns(5), &ack(1, false)).unwrap();
+        let r = e.commands.refused.clone().unwrap();
+        assert_eq!((r.command_id, r.at, r.reason.as_str()), (1, Stamp::from_ns(5), "refused"));
+        assert!(e.commands.active_goal(Stamp::from_ns(6)).is_none());
+        e.commands.issue(command(2, 3.0));
+        progress(&mut e, Stamp::from_ns(9), &report(2, CommandState::Failed)).unwrap();
+        let r = e.commands.refused.clone().unwrap();
+        assert_eq!((r.command_id, r.goal.translation.x, r.reason.as_str()), (2, 3.0, "stuck"));
+        assert_eq!(e.commands.current.as_ref().unwrap().1, Some(CommandState::Failed));
+    }
 }

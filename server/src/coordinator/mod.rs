@@ -159,6 +159,9 @@ impl Coordinator {
                 }
                 entry.hello = hello;
                 entry.conn = Some(conn);
+                // Whether the robot still drives to its last goal is unknown: the
+                // planner does not count on it (a report on it is still accepted).
+                entry.commands.cancel();
                 entry.last_seen = now;
                 entry.last_sequence = None;
                 true
@@ -340,6 +343,7 @@ impl Coordinator {
             self.tracking.start_if_needed(*newest, &e.triangulation);
         }
         self.tracking.flush(now);
+        eprintln!("DEBUG aligned {} enabled {}", aligned.is_some(), self.positioning.settings().enabled);
         let (mut estimate, _) = aligned?;
         estimate.filtered = self.tracking.estimate_at(estimate.stamp);
         estimate.source_id = self.tracking.live_track_id().unwrap_or(0);

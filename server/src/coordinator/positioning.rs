@@ -189,6 +189,11 @@ impl Positioning {
             self.settings.theta_max_deg = max;
         }
         if let Some(enabled) = u.enabled {
+            if enabled && !self.settings.enabled {
+                // Plans from before it was switched off say nothing about now.
+                self.planner.reset();
+                self.last_run = None;
+            }
             self.settings.enabled = enabled;
         }
         Ok(self.settings)
@@ -319,5 +324,29 @@ fn infeasible_key(r: &InfeasibleReason) -> &'static str {
         InfeasibleReason::NoFreeSpotAroundSource { .. } => "no_free_spot",
         InfeasibleReason::RobotStuck { .. } => "robot_stuck",
         InfeasibleReason::NoJointPlacement { .. } => "no_joint_placement",
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn bands_are_checked_naming_the_field() {
+        let field = |min, max, blame_max| check_band(min, max, 5.0, blame_max).unwrap_err().field;
+        assert!(check_band(40.0, 140.0, 5.0, false).is_ok());
+        assert!(check_band(0.0, 180.0, 5.0, false).is_ok());
+        assert!(check_band(84.0, 96.0, 5.0, false).is_ok());
+        assert_eq!(field(-0.1, 140.0, false), "theta_min_deg");
+        assert_eq!(field(f64::NAN, 140.0, true), "theta_min_deg");
+        assert_eq!(field(40.0, 180.5, false), "theta_max_deg");
+        assert_eq!(field(40.0, f64::INFINITY, false), "theta_max_deg");
+        assert_eq!(field(100.0, 90.0, false), "theta_min_deg");
+        assert_eq!(field(100.0, 90.0, true), "theta_max_deg");
+        assert_eq!(field(86.0, 94.0, true), "theta_max_deg", "narrower than 2h");
+        assert_eq!(field(86.0, 140.0, false), "theta_min_deg", "90° − h outside");
+        assert_eq!(field(40.0, 94.0, false), "theta_max_deg", "90° + h outside");
+        let e = check_band(100.0, 170.0, 5.0, false).unwrap_err().to_string();
+        assert!(e.starts_with("theta_min_deg: ") && e.contains("90°"), "{e}");
     }
 }
