@@ -7,8 +7,9 @@
 //! - Time ratios (`time_in_band_ratio`, `in_band_ratio_after_convergence`) are
 //!   time-weighted: each estimate stands for the time to the next one, capped
 //!   at [`stats::TIME_WEIGHT_CAP_S`] (1 s), the last one for the time to the
-//!   end of the run (same cap). A gap in the estimates therefore counts neither
-//!   as in-band nor as out-of-band time. The denominator is `covered_time_s`.
+//!   end of the run (same cap); estimates sharing a stamp share its time. A gap
+//!   in the estimates therefore counts neither as in-band nor as out-of-band
+//!   time. The denominator is `covered_time_s`.
 //! - θ is the true θ when known, else the published θ (`theta_source`); the band
 //!   is closed, `[theta_band_deg[0], theta_band_deg[1]]`.
 //! - "After convergence" means rows with `t_s ≥ time_to_band_s`, the first time
