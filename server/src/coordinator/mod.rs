@@ -343,7 +343,6 @@ impl Coordinator {
             self.tracking.start_if_needed(*newest, &e.triangulation);
         }
         self.tracking.flush(now);
-        eprintln!("DEBUG aligned {} enabled {}", aligned.is_some(), self.positioning.settings().enabled);
         let (mut estimate, _) = aligned?;
         estimate.filtered = self.tracking.estimate_at(estimate.stamp);
         estimate.source_id = self.tracking.live_track_id().unwrap_or(0);
