@@ -185,7 +185,8 @@ async fn run_async(scenario: &Scenario, options: &RunOptions) -> Result<RunRecor
                 let progress = CommandProgress {
                     command_id: p.goal_id,
                     state: p.state,
-                    distance_remaining_m: Some(p.distance_remaining_m),
+                    // The navigator reports NaN until its first step: unknown.
+                    distance_remaining_m: Some(p.distance_remaining_m).filter(|d| d.is_finite()),
                     detail: String::new(),
                 };
                 fleet.command_progress(i, &progress).await?;
@@ -329,20 +330,23 @@ async fn handle_event(
             fleet.command_ack(i, &ack).await
         }
         CoordinatorEvent::Cancel { .. } => Ok(()),
-        CoordinatorEvent::StreamError(e) => Err(SimError::Coordinator(format!(
-            "robot {} got a stream error: {}: {}",
-            robots[i].id, e.field, e.message
-        ))),
+        CoordinatorEvent::StreamError(e) => {
+            Err(SimError::Coordinator(format!("robot {} got a stream error: {}", robots[i].id, e.message)))
+        }
     }
 }
 
-/// Applies the scenario's active-positioning settings to the coordinator's config.
-fn configure_positioning(
-    _config: &mut soundmap_server::CoordinatorConfig,
-    _scenario: &Scenario,
-    _active: bool,
-) {
-    // Filled in when the coordinator exposes active positioning in its config.
+/// Applies the scenario's active-positioning settings to the coordinator's
+/// config: on or off, the θ band, and the room and obstacles as free space.
+fn configure_positioning(config: &mut soundmap_server::CoordinatorConfig, scenario: &Scenario, active: bool) {
+    let a = &scenario.active_positioning;
+    config.active_positioning.enabled = active;
+    config.active_positioning.theta_min_deg = a.theta_min_deg;
+    config.active_positioning.theta_max_deg = a.theta_max_deg;
+    if config.planner.free_space.room.is_empty() {
+        config.planner.free_space.room = scenario.room.floor();
+    }
+    config.planner.free_space.obstacles.extend(scenario.room.obstacles.iter().cloned());
 }
 
 fn progress_bar(show: bool, blocks: u64, name: &str) -> Option<indicatif::ProgressBar> {
