@@ -68,10 +68,11 @@ pub struct TrackedDirection {
 }
 
 impl TrackedDirection {
-    /// The DoA as the agent sends it to the coordinator (activity clamped to
-    /// [0, 1]; σ dropped when not a positive finite number, capped at π).
-    pub fn to_doa(&self) -> soundmap_proto::TrackedDoa {
-        let sigma = self.angular_sigma_rad;
+    /// The DoA as the agent sends it to the coordinator: activity clamped to
+    /// [0, 1]; σ combined in quadrature with `sigma_floor_rad`, dropped when not
+    /// a positive finite number, capped at π.
+    pub fn to_doa(&self, sigma_floor_rad: f64) -> soundmap_proto::TrackedDoa {
+        let sigma = self.angular_sigma_rad.hypot(sigma_floor_rad.max(0.0));
         soundmap_proto::TrackedDoa {
             track_id: self.track_id,
             direction_in_array: self.direction,

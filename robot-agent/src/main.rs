@@ -607,9 +607,10 @@ fn spawn_dsp(
         .name("dsp".into())
         .spawn(move || {
             let mut silence = SilenceFilter::new();
+            let sigma_floor = pipeline.doa_sigma_floor_rad();
             while let Ok((stamp, block)) = full_rx.recv() {
                 let r = pipeline.process_hop(stamp, &block);
-                let doas: Vec<TrackedDoa> = r.confirmed_doas();
+                let doas: Vec<TrackedDoa> = r.confirmed_doas(sigma_floor);
                 let frame_stamp = r.stamp;
                 let _ = free_tx.send(block);
                 if !silence.keep(&doas) {

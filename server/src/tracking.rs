@@ -18,8 +18,10 @@
 //!    [`SourceTracker::update`]; each is gated by χ² (2 dof) and applied or counted;
 //! 3. call [`SourceTracker::maintain`] with `now` regularly (lifecycle timeouts);
 //! 4. publish [`SourceTracker::estimate`] or [`SourceTracker::predict_to`]`(now)`:
-//!    its [`TrackEstimate::trusted`] is false unless the track is confirmed and its
-//!    position RMS is within [`TrackerConfig::trusted_max_rms_m`].
+//!    its [`TrackEstimate::trusted`] is false unless the track is confirmed, its
+//!    position RMS is within [`TrackerConfig::trusted_max_rms_m`], and a second
+//!    robot's DoA was accepted within the confirmation window (one robot's
+//!    bearings alone leave the range unobserved).
 
 pub mod config;
 pub mod filter;
@@ -308,7 +310,8 @@ impl SourceTracker {
         let (s, _) = track.buffer.latest();
         let rms = s.filter.predicted(now.seconds_since(s.stamp).max(0.0), &noise).position_rms_m();
         let last = s.last_update.unwrap_or(track.buffer.start());
-        track.lost = check_loss(s.confirmation.is_confirmed(), now, last, rms, &rules);
+        let second = s.confirmation.second_robot().unwrap_or(track.buffer.start()).max(track.buffer.start());
+        track.lost = check_loss(s.confirmation.is_confirmed(), now, last, second, rms, &rules);
     }
 
     /// The estimate at the newest DoA's stamp (or the initialization); `None` without a track.
@@ -345,7 +348,9 @@ impl SourceTracker {
             covariance: filter.covariance,
             position_rms_m,
             state,
-            trusted: state == TrackState::Confirmed && position_rms_m <= self.config.trusted_max_rms_m,
+            trusted: state == TrackState::Confirmed
+                && position_rms_m <= self.config.trusted_max_rms_m
+                && s.confirmation.is_supported(s.stamp, self.params.rules.support_window_ns),
             last_nis: s.last_nis,
             mean_nis: (s.applied > 0).then(|| s.nis_sum / s.applied as f64),
             last_update: s.last_update,

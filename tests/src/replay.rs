@@ -267,9 +267,10 @@ async fn replay_async(args: &ReplayArgs) -> Result<RunRecord, SimError> {
         let first = r.next.expect("filtered");
         let hop_len = r.pipeline.hop_len() as u64;
         let fs = r.pipeline.sample_rate_hz() as u64;
+        let sigma_floor = r.pipeline.doa_sigma_floor_rad();
         let result = r.pipeline.process_hop(first, &r.hop);
         let stamp = result.stamp;
-        let doas = result.confirmed_doas();
+        let doas = result.confirmed_doas(sigma_floor);
         // The coordinator's clock: the end of the simulator-sized block holding this hop.
         let block = BLOCK_LEN as u64;
         let block_end = (r.samples_done / block + 1) * block;

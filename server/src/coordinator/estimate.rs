@@ -68,10 +68,22 @@ impl Estimate {
     }
 
     /// Whether the best estimate can be trusted to its covariance: a trusted
-    /// track, or else a triangulation its gate accepted.
+    /// track whose current rays are not ill-conditioned, or else a
+    /// triangulation its gate accepted.
+    ///
+    /// A filter fed at θ ≈ 10° keeps shrinking its covariance with every DoA
+    /// as if their errors were independent, but a room biases each robot's DoAs
+    /// consistently for a given geometry: averaging them does not pin down
+    /// the depth. So a filtered estimate is not trusted while the instantaneous
+    /// geometry is ill-conditioned (or degenerate), however small its covariance.
     pub fn trusted(&self) -> bool {
         match self.best_source() {
-            BestSource::Filter => true,
+            BestSource::Filter => match &self.triangulation {
+                Triangulation::Solved(s) => {
+                    !matches!(s.gate, Gate::Rejected(GateReason::IllConditioned { .. }))
+                }
+                Triangulation::Degenerate(_) => false,
+            },
             BestSource::Triangulation => {
                 matches!(self.triangulation.solution(), Some(s) if s.gate == Gate::Accepted)
             }

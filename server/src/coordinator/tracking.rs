@@ -36,6 +36,8 @@ pub struct TrackingCounters {
     pub gated: u64,
     /// DoAs refused for any other reason: no track, before its start, too late, unusable.
     pub unused: u64,
+    /// DoAs not given to the tracker because of the per-robot rate limit.
+    pub skipped: u64,
 }
 
 /// A queued DoA, ordered by stamp then arrival.
@@ -84,6 +86,10 @@ pub struct Tracking {
     latest: Vec<Option<Stamp>>,
     /// Newest observation stamp of any robot.
     newest: Option<Stamp>,
+    /// Stamp of the last DoA queued per robot index (rate limit).
+    last_queued: Vec<Option<Stamp>>,
+    /// Shortest interval between two DoAs of a robot given to the tracker (ns).
+    min_interval_ns: i64,
     counters: TrackingCounters,
 }
 
@@ -96,6 +102,12 @@ impl Tracking {
             arrivals: 0,
             latest: Vec::new(),
             newest: None,
+            last_queued: Vec::new(),
+            min_interval_ns: if config.max_doa_rate_hz > 0.0 {
+                (1e9 / config.max_doa_rate_hz) as i64
+            } else {
+                0
+            },
             counters: TrackingCounters::default(),
         }
     }
@@ -131,9 +143,20 @@ impl Tracking {
         }
     }
 
-    /// Queues the dominant DoA ray (map frame) of robot `robot` stamped `stamp`.
+    /// Queues the dominant DoA ray (map frame) of robot `robot` stamped `stamp`,
+    /// unless that robot's previous one was queued less than
+    /// 1/`max_doa_rate_hz` earlier (see [`TrackerConfig::max_doa_rate_hz`]).
     pub fn push(&mut self, stamp: Stamp, robot: u32, ray: Ray) {
         if self.tracker.is_some() {
+            let i = robot as usize;
+            if self.last_queued.len() <= i {
+                self.last_queued.resize(i + 1, None);
+            }
+            if self.last_queued[i].is_some_and(|last| stamp - last < self.min_interval_ns && stamp >= last) {
+                self.counters.skipped += 1;
+                return;
+            }
+            self.last_queued[i] = Some(stamp);
             self.arrivals += 1;
             self.queue.push(Reverse(Queued { stamp, arrival: self.arrivals, robot, ray }));
         }

@@ -89,6 +89,12 @@ pub struct PlannerConfig {
     pub improvement_release: f64,
     /// θ must come this far inside the band to end a θ-triggered correction (degrees). Default 5.
     pub theta_hysteresis_deg: f64,
+    /// A θ correction starts when θ comes this close to an edge of the band
+    /// (degrees), before it leaves it: robots need seconds to move while a
+    /// walking source changes θ by several degrees a second. Never narrower
+    /// than 90° ± 2 × `theta_hysteresis_deg`. Default 10 (trigger outside
+    /// 50–130° for the paper's 40–140° band).
+    pub theta_margin_deg: f64,
     /// GDOP must fall below max_gdop × (1 − this) to end a GDOP-triggered correction. Default 0.1.
     pub gdop_hysteresis: f64,
     /// Robots with goals keep them until the source has moved this far from
@@ -137,6 +143,7 @@ impl Default for PlannerConfig {
             improvement_threshold: 0.2,
             improvement_release: 0.1,
             theta_hysteresis_deg: 5.0,
+            theta_margin_deg: 10.0,
             gdop_hysteresis: 0.1,
             follow_distance_m: 0.5,
             source_lead_s: 1.0,
@@ -153,9 +160,21 @@ impl Default for PlannerConfig {
 }
 
 impl PlannerConfig {
-    /// The step a robot may take in one cycle (m).
+    /// The band inside which θ triggers no correction (degrees): the band
+    /// narrowed by `theta_margin_deg`, never narrower than 90° ± 2h.
+    pub fn trigger_band_deg(&self) -> (f64, f64) {
+        let h2 = 2.0 * self.theta_hysteresis_deg;
+        let lo = (self.theta_min_deg + self.theta_margin_deg).min(90.0 - h2).max(self.theta_min_deg);
+        let hi = (self.theta_max_deg - self.theta_margin_deg).max(90.0 + h2).min(self.theta_max_deg);
+        (lo, hi)
+    }
+
+    /// The step a robot may take in one cycle (m): 1.5 × what it drives in a
+    /// planning period, so that it is still driving when the next plan comes
+    /// (a robot that reaches each waypoint stops and restarts, and falls behind
+    /// a walking source), capped at `max_step_m`.
     pub fn step_m(&self) -> f64 {
-        self.max_step_m.min(self.robot_speed_mps * self.planning_period_s)
+        self.max_step_m.min(1.5 * self.robot_speed_mps * self.planning_period_s)
     }
 
     /// Robot radius plus margin: distance kept from walls and obstacles (m).
@@ -193,6 +212,7 @@ impl PlannerConfig {
             ("improvement_threshold", self.improvement_threshold),
             ("improvement_release", self.improvement_release),
             ("theta_hysteresis_deg", self.theta_hysteresis_deg),
+            ("theta_margin_deg", self.theta_margin_deg),
             ("gdop_hysteresis", self.gdop_hysteresis),
             ("follow_distance_m", self.follow_distance_m),
             ("source_lead_s", self.source_lead_s),

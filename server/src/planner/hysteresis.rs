@@ -1,7 +1,8 @@
 //! When to re-task the robots (theory §3.5, step 6): triggers with hysteresis
 //! and the memory of the last plan.
 //!
-//! - A correction *starts* when θ leaves the band, the GDOP exceeds its
+//! - A correction *starts* when θ comes within `theta_margin_deg` of an edge of
+//!   the band (before it leaves it), the GDOP exceeds its
 //!   threshold, or the predicted reduction of √tr J⁻¹ reaches the improvement
 //!   threshold (~20 %).
 //! - Once started it *continues* until θ is `theta_hysteresis_deg` inside the
@@ -83,7 +84,8 @@ pub(crate) fn trigger(
     s: &Situation,
 ) -> Option<RepositionReason> {
     let h = if engaged == Some(RepositionReason::ThetaOutOfBand) { cfg.theta_hysteresis_deg } else { 0.0 };
-    if !(s.theta_deg >= cfg.theta_min_deg + h && s.theta_deg <= cfg.theta_max_deg - h) {
+    let (lo, hi) = cfg.trigger_band_deg();
+    if !(s.theta_deg >= lo + h && s.theta_deg <= hi - h) {
         return Some(RepositionReason::ThetaOutOfBand);
     }
     let g = if engaged == Some(RepositionReason::GdopHigh) {
@@ -140,22 +142,28 @@ mod tests {
     #[test]
     fn band_edges_have_hysteresis() {
         let cfg = PlannerConfig::default();
-        let s = situation(42.0, 2.0, 0.15);
-        // Idle: 42° is in band and 15 % is below 20 %.
+        assert_eq!(cfg.trigger_band_deg(), (50.0, 130.0));
+        // Idle: 42° is inside the band but within the 10° margin: correct now, before it leaves.
+        assert_eq!(trigger(&cfg, None, &situation(42.0, 2.0, 0.0)), Some(RepositionReason::ThetaOutOfBand));
+        let s = situation(52.0, 2.0, 0.15);
+        // Idle: 52° is clear of the margin and 15 % is below 20 %.
         assert_eq!(trigger(&cfg, None, &s), None);
-        // During a θ correction, 42° is not yet 5° inside the band.
+        // During a θ correction, 52° is not yet 5° inside the trigger band.
         assert_eq!(
             trigger(&cfg, Some(RepositionReason::ThetaOutOfBand), &s),
             Some(RepositionReason::ThetaOutOfBand)
         );
-        // Past 45°, the correction continues while the gain exceeds the release (10 %).
-        let s = situation(50.0, 2.0, 0.15);
+        // Past 55°, the correction continues while the gain exceeds the release (10 %).
+        let s = situation(60.0, 2.0, 0.15);
         assert_eq!(
             trigger(&cfg, Some(RepositionReason::ThetaOutOfBand), &s),
             Some(RepositionReason::Improvement)
         );
-        let s = situation(50.0, 2.0, 0.05);
+        let s = situation(60.0, 2.0, 0.05);
         assert_eq!(trigger(&cfg, Some(RepositionReason::Improvement), &s), None);
+        // A narrow band keeps 90° ± 2h clear of triggers.
+        let narrow = PlannerConfig { theta_min_deg: 75.0, theta_max_deg: 105.0, ..PlannerConfig::default() };
+        assert_eq!(narrow.trigger_band_deg(), (80.0, 100.0));
         // GDOP: 2.4 ends an idle check but not a GDOP correction (threshold 2.25 then).
         let s = situation(90.0, 2.4, 0.0);
         assert_eq!(trigger(&cfg, None, &s), None);

@@ -62,6 +62,22 @@ pub struct TrackerConfig {
     pub lost_max_rms_m: f64,
     /// Largest position RMS of an estimate marked trusted (m). Default 0.5.
     pub trusted_max_rms_m: f64,
+    /// Most DoAs per second applied from each robot (Hz); more frequent ones
+    /// are skipped. Agents send every hop (125 Hz) of their own DoA tracker,
+    /// whose outputs are smoothed and whose errors are correlated over much
+    /// longer (reflections bias them consistently): applied as independent
+    /// measurements they would shrink the covariance far below the real
+    /// error. 0 applies every DoA. Default 10.
+    pub max_doa_rate_hz: f64,
+    /// A confirmed track is trusted only while a second robot's DoA was
+    /// accepted within this long of its newest one (s). Default 0.5: one
+    /// robot's bearings alone leave the range along them unobserved, and a
+    /// filter fed by one robot slides along its ray while its covariance still
+    /// looks small.
+    pub support_window_s: f64,
+    /// A confirmed track fed by a single robot (the others' DoAs gated) for
+    /// this long is lost and restarts from the next trusted triangulation (s). Default 1.0.
+    pub single_robot_timeout_s: f64,
 }
 
 impl Default for TrackerConfig {
@@ -88,6 +104,9 @@ impl Default for TrackerConfig {
             lost_timeout_s: 3.0,
             lost_max_rms_m: 2.0,
             trusted_max_rms_m: 0.5,
+            max_doa_rate_hz: 10.0,
+            support_window_s: 0.5,
+            single_robot_timeout_s: 1.0,
         }
     }
 }
@@ -115,6 +134,9 @@ impl TrackerConfig {
             ("confirm_window_s", self.confirm_window_s),
             ("tentative_timeout_s", self.tentative_timeout_s),
             ("lost_timeout_s", self.lost_timeout_s),
+            ("support_window_s", self.support_window_s),
+            ("max_doa_rate_hz", self.max_doa_rate_hz),
+            ("single_robot_timeout_s", self.single_robot_timeout_s),
         ];
         for (field, v) in non_negative {
             if !(v.is_finite() && v >= 0.0) {
@@ -185,6 +207,8 @@ impl TrackerConfig {
             tentative_timeout_s: self.tentative_timeout_s,
             lost_timeout_s: self.lost_timeout_s,
             lost_max_rms_m: self.lost_max_rms_m,
+            support_window_ns: secs_to_ns(self.support_window_s),
+            single_robot_timeout_s: self.single_robot_timeout_s,
         }
     }
 

@@ -11,8 +11,13 @@
 //!   update history only, so the fixed-lag replay reproduces it exactly.
 //! - It is **lost** (terminal, until re-initialized) when no DoA has been
 //!   accepted for `tentative_timeout` (tentative) or `lost_timeout` (confirmed),
-//!   or when its position RMS exceeds `lost_max_rms_m` (diverged). Loss is
-//!   decided by [`check_loss`] at the caller's `now`.
+//!   or when its position RMS exceeds `lost_max_rms_m` (diverged), or when a
+//!   confirmed track has been fed by a single robot for longer than
+//!   `single_robot_timeout` (one bearing leaves the range along it unobserved:
+//!   the state slides along that ray while its covariance still looks small).
+//!   Loss is decided by [`check_loss`] at the caller's `now`.
+//! - A confirmed track is **supported** while a second robot's DoA was accepted
+//!   within `support_window` of its newest one; only a supported track is trusted.
 
 use soundmap_proto::Stamp;
 
@@ -43,6 +48,11 @@ pub enum LossReason {
         /// √tr P_pos when it was detected (m).
         position_rms_m: f64,
     },
+    /// Only one robot's DoAs were accepted for too long (the others were gated).
+    SingleRobot {
+        /// Time since a second robot's DoA was last accepted (s).
+        single_s: f64,
+    },
 }
 
 /// The lifecycle thresholds (see the module documentation).
@@ -62,6 +72,10 @@ pub struct LifecycleRules {
     pub lost_timeout_s: f64,
     /// Position RMS that loses any track (m).
     pub lost_max_rms_m: f64,
+    /// A second robot's DoA must be this recent for the track to be trusted (ns).
+    pub support_window_ns: i64,
+    /// Single-robot feeding that loses a confirmed track (s).
+    pub single_robot_timeout_s: f64,
 }
 
 /// The replayable part of the lifecycle: recent accepted updates and whether
@@ -72,11 +86,22 @@ pub struct Confirmation {
     len: usize,
     next: usize,
     confirmed: bool,
+    /// The newest accepted update (stamp, robot).
+    last: Option<(Stamp, u32)>,
+    /// Stamp of the newest accepted update from a robot other than `last`'s.
+    other: Option<Stamp>,
 }
 
 impl Default for Confirmation {
     fn default() -> Self {
-        Confirmation { recent: [(Stamp::ZERO, 0); MAX_CONFIRM_UPDATES], len: 0, next: 0, confirmed: false }
+        Confirmation {
+            recent: [(Stamp::ZERO, 0); MAX_CONFIRM_UPDATES],
+            len: 0,
+            next: 0,
+            confirmed: false,
+            last: None,
+            other: None,
+        }
     }
 }
 
@@ -86,9 +111,26 @@ impl Confirmation {
         self.confirmed
     }
 
+    /// Stamp of the newest accepted DoA from a robot other than the newest
+    /// one's: the track has two-robot support up to there.
+    pub fn second_robot(&self) -> Option<Stamp> {
+        self.other
+    }
+
+    /// Whether a second robot's DoA was accepted within `window_ns` of `at`.
+    pub fn is_supported(&self, at: Stamp, window_ns: i64) -> bool {
+        self.other.is_some_and(|o| at - o <= window_ns)
+    }
+
     /// Records an accepted update from `robot` at `stamp`, after which the
     /// position RMS is `position_rms_m`, and confirms the track if the rules hold.
     pub fn record(&mut self, stamp: Stamp, robot: u32, position_rms_m: f64, rules: &LifecycleRules) {
+        if let Some((t, r)) = self.last
+            && r != robot
+        {
+            self.other = Some(t);
+        }
+        self.last = Some((stamp, robot));
         let m = rules.confirm_updates.clamp(1, MAX_CONFIRM_UPDATES);
         self.recent[self.next % m] = (stamp, robot);
         self.next = (self.next + 1) % m;
@@ -107,12 +149,15 @@ impl Confirmation {
 }
 
 /// Whether a track should be lost at `now`: `last_accepted` is the stamp of its
-/// last accepted DoA (or its initialization) and `position_rms_m` its position
-/// RMS predicted to `now`. Divergence is checked first.
+/// last accepted DoA (or its initialization), `second_robot` that of the last
+/// accepted DoA from a robot other than the newest one's (or the
+/// initialization), and `position_rms_m` its position RMS predicted to `now`.
+/// Divergence is checked first, then silence, then single-robot support.
 pub fn check_loss(
     confirmed: bool,
     now: Stamp,
     last_accepted: Stamp,
+    second_robot: Stamp,
     position_rms_m: f64,
     rules: &LifecycleRules,
 ) -> Option<LossReason> {
@@ -121,7 +166,12 @@ pub fn check_loss(
     }
     let silent_s = now.seconds_since(last_accepted);
     let timeout_s = if confirmed { rules.lost_timeout_s } else { rules.tentative_timeout_s };
-    (silent_s > timeout_s).then_some(LossReason::Silent { silent_s })
+    if silent_s > timeout_s {
+        return Some(LossReason::Silent { silent_s });
+    }
+    // Span of DoAs from one robot only, up to the newest accepted one.
+    let single_s = last_accepted.seconds_since(second_robot);
+    (confirmed && single_s > rules.single_robot_timeout_s).then_some(LossReason::SingleRobot { single_s })
 }
 
 #[cfg(test)]
@@ -136,6 +186,8 @@ mod tests {
         tentative_timeout_s: 1.0,
         lost_timeout_s: 2.0,
         lost_max_rms_m: 2.0,
+        support_window_ns: 500_000_000,
+        single_robot_timeout_s: 1.0,
     };
 
     fn ms(t: i64) -> Stamp {
@@ -177,14 +229,42 @@ mod tests {
     }
 
     #[test]
-    fn loss_by_silence_and_divergence() {
-        assert_eq!(check_loss(false, ms(900), ms(0), 0.3, &RULES), None);
-        assert!(matches!(check_loss(false, ms(1100), ms(0), 0.3, &RULES), Some(LossReason::Silent { .. })));
-        assert_eq!(check_loss(true, ms(1100), ms(0), 0.3, &RULES), None);
-        assert!(matches!(check_loss(true, ms(100), ms(0), 2.5, &RULES), Some(LossReason::Diverged { .. })));
+    fn loss_by_silence_divergence_and_single_robot() {
+        assert_eq!(check_loss(false, ms(900), ms(0), ms(0), 0.3, &RULES), None);
         assert!(matches!(
-            check_loss(true, ms(100), ms(0), f64::NAN, &RULES),
+            check_loss(false, ms(1100), ms(0), ms(0), 0.3, &RULES),
+            Some(LossReason::Silent { .. })
+        ));
+        assert_eq!(check_loss(true, ms(1100), ms(0), ms(0), 0.3, &RULES), None);
+        assert!(matches!(
+            check_loss(true, ms(100), ms(0), ms(0), 2.5, &RULES),
             Some(LossReason::Diverged { .. })
         ));
+        assert!(matches!(
+            check_loss(true, ms(100), ms(0), ms(0), f64::NAN, &RULES),
+            Some(LossReason::Diverged { .. })
+        ));
+        // Fed by one robot only (accepted DoAs keep coming): lost after single_robot_timeout.
+        assert_eq!(check_loss(true, ms(1500), ms(1490), ms(600), 0.3, &RULES), None);
+        assert!(matches!(
+            check_loss(true, ms(1700), ms(1690), ms(600), 0.3, &RULES),
+            Some(LossReason::SingleRobot { .. })
+        ));
+    }
+
+    #[test]
+    fn support_needs_a_second_robot_recently() {
+        let mut c = Confirmation::default();
+        for k in 0..6 {
+            c.record(ms(k * 10), k as u32 % 2, 0.1, &RULES);
+        }
+        assert!(c.is_supported(ms(50), RULES.support_window_ns));
+        assert_eq!(c.second_robot(), Some(ms(40)));
+        // Robot 1 is gated from now on: only robot 0's updates are accepted.
+        for k in 6..200 {
+            c.record(ms(k * 10), 0, 0.1, &RULES);
+        }
+        assert_eq!(c.second_robot(), Some(ms(50)));
+        assert!(!c.is_supported(ms(1990), RULES.support_window_ns));
     }
 }

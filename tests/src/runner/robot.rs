@@ -234,8 +234,9 @@ impl SimRobot {
                 }
             }
             on_audio(&self.hop);
+            let sigma_floor = self.pipeline.doa_sigma_floor_rad();
             let r = self.pipeline.process_hop(stamp_of(first_sample + (h * hop_len) as u64), &self.hop);
-            let doas = r.confirmed_doas();
+            let doas = r.confirmed_doas(sigma_floor);
             self.hops.push(HopDoas { stamp: r.stamp, doas });
         }
         Ok(())
