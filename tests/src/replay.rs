@@ -334,6 +334,7 @@ async fn replay_async(args: &ReplayArgs) -> Result<RunRecord, SimError> {
         source_path,
         room: None,
         seed: None,
+        commands: vec![],
     })
 }
 

@@ -67,6 +67,7 @@ fn record(rows: Vec<TimelineRow>, duration_s: f64) -> RunRecord {
             obstacles: vec![vec![[1.5, 2.0], [2.5, 2.0], [2.5, 2.5], [1.5, 2.5]]],
         }),
         seed: Some(7),
+        commands: vec![],
     }
 }
 
@@ -500,6 +501,7 @@ fn realistic_run(active: bool) -> RunRecord {
             obstacles: vec![vec![[0.6, 4.0], [1.4, 4.0], [1.2, 3.2]]],
         }),
         seed: Some(42),
+        commands: vec![],
     }
 }
 
@@ -525,4 +527,19 @@ fn a_realistic_comparison_renders_and_favours_the_band() {
     let table = format_comparison_table(&on, &off, &dir);
     println!("{table}");
     assert!(table.contains("triangulation RSE p95"), "{table}");
+}
+
+#[test]
+fn commands_csv_quotes_details_and_keeps_order() {
+    let mut rec = record(vec![], 10.0);
+    rec.commands = vec![
+        (1.25, "r1".into(), "theta 12.0° out of band, goal (1.0, 2.0)".into()),
+        (3.5, "r2".into(), "ideal spot is blocked: \"pillar\"".into()),
+    ];
+    let text = soundmap_sim::report::commands_csv(&rec);
+    let lines: Vec<&str> = text.lines().collect();
+    assert_eq!(lines[0], "t_s,robot,detail");
+    assert_eq!(lines[1], "1.250,r1,\"theta 12.0° out of band, goal (1.0, 2.0)\"");
+    assert_eq!(lines[2], "3.500,r2,\"ideal spot is blocked: \"\"pillar\"\"\"");
+    assert_eq!(lines.len(), 3);
 }

@@ -7,6 +7,7 @@
 //! | `timeline.csv` | one row per published estimate ([`csv`] lists the columns) |
 //! | `theta_bins.csv` | RSE mean/std/count in 15° bins of θ ([`bins`]) |
 //! | `summary.json` | the run's figures ([`Summary`]; conventions in [`summary`]) |
+//! | `commands.csv` | reposition commands the robots received: `t_s, robot, detail` |
 //! | `distances_rse.{svg,png}` | d1 … dN and RSE over time |
 //! | `theta_rse.{svg,png}` | θ over time with the band, and RSE |
 //! | `rse_vs_theta.{svg,png}` | mean RSE ± std per 15° bin over the scatter of all estimates |
@@ -43,6 +44,8 @@ pub const TIMELINE_CSV: &str = "timeline.csv";
 pub const THETA_BINS_CSV: &str = "theta_bins.csv";
 /// File name of the summary.
 pub const SUMMARY_JSON: &str = "summary.json";
+/// File name of the reposition commands.
+pub const COMMANDS_CSV: &str = "commands.csv";
 /// Stems of the plots of one run; each is written as `.svg` and `.png`.
 pub const PLOT_STEMS: [&str; 4] = ["distances_rse", "theta_rse", "rse_vs_theta", "map"];
 /// File name of the side-by-side summaries of [`write_comparison`].
@@ -65,6 +68,7 @@ pub fn write_reports(record: &RunRecord, out_dir: &Path) -> Result<Summary, SimE
     write(out_dir, THETA_BINS_CSV, &bins::bins_csv(&theta_bins, derived.theta_source))?;
     let summary = Summary::new(record, &derived);
     write(out_dir, SUMMARY_JSON, &summary.to_json())?;
+    write(out_dir, COMMANDS_CSV, &commands_csv(record))?;
 
     let [distances, theta, rse_theta, map] = PLOT_STEMS;
     plots::save(&plots::distances::DistancesRse { record, derived: &derived }, out_dir, distances)?;
@@ -99,6 +103,16 @@ fn validate(record: &RunRecord) -> Result<(), SimError> {
         }
     }
     Ok(())
+}
+
+/// `commands.csv` as text: a header, then one line per command in the order
+/// received; the detail is quoted (it holds commas), with `"` doubled.
+pub fn commands_csv(record: &RunRecord) -> String {
+    let mut out = String::from("t_s,robot,detail\n");
+    for (t_s, robot, detail) in &record.commands {
+        out.push_str(&format!("{t_s:.3},{robot},\"{}\"\n", detail.replace('"', "\"\"")));
+    }
+    out
 }
 
 /// Write `contents` to `dir/name`.

@@ -90,4 +90,7 @@ pub struct RunRecord {
     pub room: Option<RoomOutline>,
     /// Seed of the run (simulation only).
     pub seed: Option<u64>,
+    /// Reposition commands the robots received: (t_s, robot id, the
+    /// coordinator's detail text: reason, θ, and the planner's note).
+    pub commands: Vec<(f64, String, String)>,
 }

@@ -148,6 +148,7 @@ async fn run_async(scenario: &Scenario, options: &RunOptions) -> Result<RunRecor
     let mut paths: Vec<RobotPath> =
         robots.iter().map(|r| RobotPath { id: r.id.to_string(), samples: vec![], goals: vec![] }).collect();
     let mut source_truth = Vec::new();
+    let mut commands = Vec::new();
     let hops_per_block = BLOCK_LEN / hop;
     for b in 0..blocks {
         let first = b * BLOCK_LEN as u64;
@@ -173,6 +174,9 @@ async fn run_async(scenario: &Scenario, options: &RunOptions) -> Result<RunRecor
                     rec[i].pose(obs.stamp, SIM_EPOCH, &obs.map_from_base)?;
                 }
                 for event in fleet.observe(i, obs).await? {
+                    if let CoordinatorEvent::Reposition(cmd) = &event {
+                        commands.push((t_of(hop_doas.stamp), robots[i].id.to_string(), cmd.detail.clone()));
+                    }
                     handle_event(&mut fleet, &mut robots, &mut paths, i, event, t_of(hop_doas.stamp)).await?;
                 }
                 for e in fleet.drain_estimates()? {
@@ -239,6 +243,7 @@ async fn run_async(scenario: &Scenario, options: &RunOptions) -> Result<RunRecor
             .collect(),
         room: Some(RoomOutline { floor: scenario.room.floor(), obstacles: scenario.room.obstacles.clone() }),
         seed: Some(seed),
+        commands,
     })
 }
 
