@@ -186,7 +186,9 @@ fn side_by_side_pair_is_sent_to_ninety_degrees() {
 #[test]
 fn side_by_side_pair_converges_into_the_band_with_the_step_limit() {
     let (src, mut robots) = side_by_side();
-    let cfg = room_config();
+    let mut cfg = room_config();
+    // A 2 s period: the step is the 1 m cap, not 1.5 × speed × period.
+    cfg.planning_period_s = 2.0;
     assert!((cfg.step_m() - 1.0).abs() < 1e-12);
     let mut planner = Planner::new(cfg.clone()).unwrap();
     let mut in_band_at = None;

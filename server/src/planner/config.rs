@@ -70,7 +70,7 @@ pub struct PlannerConfig {
     pub max_step_m: f64,
     /// Robot cruise speed (m/s). Default 0.5.
     pub robot_speed_mps: f64,
-    /// Shortest time between two re-taskings (s). Default 2.0.
+    /// Shortest time between two re-taskings (s). Default 1.0: a walking source (0.5 m/s) moves half a metre between re-taskings.
     pub planning_period_s: f64,
     /// Robot footprint radius (m). Default 0.25.
     pub robot_radius_m: f64,
@@ -135,7 +135,7 @@ impl Default for PlannerConfig {
             min_separation_m: 0.8,
             max_step_m: 1.0,
             robot_speed_mps: 0.5,
-            planning_period_s: 2.0,
+            planning_period_s: 1.0,
             robot_radius_m: 0.25,
             clearance_m: 0.1,
             wedge_half_width_deg: 15.0,
@@ -304,7 +304,8 @@ mod tests {
     #[test]
     fn defaults_are_valid() {
         PlannerConfig::default().validate().unwrap();
-        assert!((PlannerConfig::default().step_m() - 1.0).abs() < 1e-12);
+        // 1.5 × 0.5 m/s × 1 s, under the 1 m cap.
+        assert!((PlannerConfig::default().step_m() - 0.75).abs() < 1e-12);
     }
 
     #[test]
