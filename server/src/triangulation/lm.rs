@@ -127,7 +127,10 @@ pub fn refine(rays: &[Ray], init: Point3<f64>, loss: RobustLoss, max_iterations:
         }
         let mut improved = false;
         for _ in 0..12 {
-            let damped = h + Matrix3::from_diagonal(&h.diagonal()) * mu;
+            // Isotropic damping scaled by tr H / 3: unlike Marquardt's diag(H) it
+            // does not depend on the map's axes, so the iterates (not only the
+            // minimum) turn and move with the scene, converged or not.
+            let damped = h + Matrix3::identity() * (mu * h.trace() / 3.0);
             let Some(step) = damped.cholesky().map(|c| c.solve(&(-g))) else {
                 mu *= 10.0;
                 continue;
