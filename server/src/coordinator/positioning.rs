@@ -261,7 +261,8 @@ impl Positioning {
             goal.predicted_theta_deg,
             goal.predicted_gdop
         );
-        if goal.used_fallback {
+        // The planner's note names the fallback and why; say it once.
+        if goal.used_fallback && !goal.note.as_deref().is_some_and(|n| n.contains("sampling fallback")) {
             detail.push_str("; sampling fallback");
         }
         if let Some(note) = &goal.note {

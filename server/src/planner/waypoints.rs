@@ -7,11 +7,11 @@ use soundmap_proto::RepositionReason;
 
 use super::cycle::{self, CycleRobot, Separation};
 use super::outcome::{Goal, InfeasibleReason};
-use super::pose::facing_pose;
+use super::pose::{facing_pose, sensor_at};
 use super::qp::{self, QpOutcome};
 use super::sampling::{self, SampleOutcome, SampleRobot};
 use super::{Planner, RobotCycle, RobotState};
-use crate::uncertainty::GeometryQuality;
+use crate::uncertainty::{GeometryQuality, assess};
 
 /// Tolerance of the checks applied to waypoints (m).
 const CHECK_TOL_M: f64 = 1e-6;
@@ -84,6 +84,29 @@ impl Planner {
         if why_not_qp.is_none() {
             match qp::solve(&centre, &cycle_robots, &seps, cfg.goal_weight) {
                 QpOutcome::Solved(w) if self.check(&centre, per_robot, &w, &seps, step) => {
+                    // The way to the target pattern can pass through a poor
+                    // geometry (a robot swinging round a source that walked
+                    // close to it). Then the sampling search, which scores this
+                    // cycle's geometry, decides when it keeps θ nearer the band.
+                    let outside = self.degrees_out_of_band(src, robots, &w);
+                    if outside > 0.0 {
+                        let sample_robots = sample_robots(robots, per_robot, &cycle_robots, step);
+                        let band = (cfg.theta_min_deg, cfg.theta_max_deg);
+                        if let SampleOutcome::Found(v) =
+                            sampling::search(src, &sample_robots, &seps, &self.free, band, &cfg.sampling)
+                            && self.check(&centre, per_robot, &v, &seps, step)
+                            && self.degrees_out_of_band(src, robots, &v) < outside
+                        {
+                            return Ok(Waypoints {
+                                spots: v,
+                                separations: seps,
+                                used_fallback: true,
+                                why_fallback: Some(format!(
+                                    "the convex waypoints would leave θ {outside:.0}° out of band"
+                                )),
+                            });
+                        }
+                    }
                     return Ok(Waypoints {
                         spots: w,
                         separations: seps,
@@ -98,19 +121,7 @@ impl Planner {
                 QpOutcome::Failed(m) => why_not_qp = Some(format!("convex problem failed: {m}")),
             }
         }
-        let sample_robots: Vec<SampleRobot> = robots
-            .iter()
-            .zip(per_robot)
-            .enumerate()
-            .map(|(i, (r, c))| SampleRobot {
-                p0: c.p0,
-                base_from_array: r.base_from_array,
-                sigma_rad: r.sigma_rad,
-                range: c.bounds,
-                step,
-                heading: cycle_robots.get(i).map(|cr| cr.target),
-            })
-            .collect();
+        let sample_robots = sample_robots(robots, per_robot, &cycle_robots, step);
         let band = (cfg.theta_min_deg, cfg.theta_max_deg);
         let why = why_not_qp.unwrap_or_default();
         match sampling::search(src, &sample_robots, &seps, &self.free, band, &cfg.sampling) {
@@ -136,6 +147,20 @@ impl Planner {
                 ),
             }),
         }
+    }
+
+    /// Degrees by which the best pairwise θ at `spots` lies outside the band (0 inside).
+    fn degrees_out_of_band(&self, src: &Point3<f64>, robots: &[RobotState], spots: &[Point2<f64>]) -> f64 {
+        let sensors: Vec<_> = robots
+            .iter()
+            .zip(spots)
+            .map(|(r, q)| sensor_at(q, src, &r.base_from_array, r.sigma_rad))
+            .collect();
+        let theta = assess(&sensors, src).theta_deg;
+        if !theta.is_finite() {
+            return f64::INFINITY;
+        }
+        (self.config.theta_min_deg - theta).max(theta - self.config.theta_max_deg).max(0.0)
     }
 
     /// The hard constraints: step, range bounds, free space, separations.
@@ -235,4 +260,26 @@ impl Planner {
         }
         goals
     }
+}
+
+/// The robots' part of the sampling search this cycle.
+fn sample_robots(
+    robots: &[RobotState],
+    per_robot: &[RobotCycle],
+    cycle_robots: &[CycleRobot],
+    step: f64,
+) -> Vec<SampleRobot> {
+    robots
+        .iter()
+        .zip(per_robot)
+        .enumerate()
+        .map(|(i, (r, c))| SampleRobot {
+            p0: c.p0,
+            base_from_array: r.base_from_array,
+            sigma_rad: r.sigma_rad,
+            range: c.bounds,
+            step,
+            heading: cycle_robots.get(i).map(|cr| cr.target),
+        })
+        .collect()
 }
