@@ -15,7 +15,9 @@
 //!    predicted improvement, or goals made invalid / left behind by the source;
 //! 4. `cycle` + `qp`: this cycle's waypoints from a Clarabel QP/SOCP
 //!    (wedges, keep-out chord, range and step cones, convex free region,
-//!    linearised separation), else the `sampling` search;
+//!    linearised separation), else the `sampling` search; the search also
+//!    runs when the convex step would leave θ out of the band, and its
+//!    placement is kept when θ ends nearer the band;
 //! 5. every waypoint is checked against the hard constraints (step, range,
 //!    free space with clearance, separation) before it becomes a [`Goal`].
 //!

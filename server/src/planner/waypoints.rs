@@ -1,6 +1,7 @@
-//! This cycle's waypoints: the convex problem, else the sampling search,
-//! each result checked against the hard constraints (step, range bounds,
-//! free space with clearance, separations); and the goals built from them.
+//! This cycle's waypoints: the convex problem, else the sampling search (also
+//! consulted when the convex step would leave θ out of the band), each result
+//! checked against the hard constraints (step, range bounds, free space with
+//! clearance, separations); and the goals built from them.
 
 use nalgebra::{Point2, Point3};
 use soundmap_proto::RepositionReason;
