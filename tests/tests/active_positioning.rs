@@ -49,6 +49,12 @@ fn active_moving_brings_theta_into_band_and_keeps_it() {
     assert!(in_band >= 0.95, "in band after convergence {in_band}");
     let p95 = on.rse_p95_after_convergence_m.unwrap();
     assert!(p95 < 0.3, "RSE p95 after convergence {p95} m");
+    // Trusted estimates are honest about their error: few fall outside their
+    // published 99 % ellipsoid.
+    let outside = on.nees_above_chi2_99_trusted_ratio.unwrap();
+    assert!(outside < 0.05, "{outside} of trusted estimates outside their 99 % ellipsoid");
+    let nees = on.nees_mean_trusted.unwrap();
+    assert!((0.5..6.0).contains(&nees), "mean NEES of trusted estimates {nees}");
     let (on_median, off_median) = (on.rse_median_m.unwrap(), off.rse_median_m.unwrap());
     assert!(on_median < 0.5 * off_median, "median RSE on {on_median} m vs off {off_median} m");
 }

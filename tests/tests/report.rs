@@ -38,6 +38,7 @@ fn row(t_s: f64, theta_deg: f64, rse_m: f64) -> TimelineRow {
         method: "ray_pair".into(),
         robots: vec!["r1".into(), "r2".into()],
         truth: Some(truth),
+        covariance: None,
     }
 }
 
@@ -113,7 +114,7 @@ fn timeline_has_the_columns_and_values_of_the_rows() {
 
     let (header, cells) = read_csv(&dir.join("timeline.csv"));
     let expected = "t_s,d1_m,d2_m,theta_deg,gdop,est_x_m,est_y_m,est_z_m,truth_x_m,truth_y_m,truth_z_m,rse_m,\
-                    true_theta_deg,theta_in_band,trusted,method,robots,tri_x_m,tri_y_m,tri_z_m,tri_rse_m";
+                    true_theta_deg,theta_in_band,trusted,method,robots,tri_x_m,tri_y_m,tri_z_m,tri_rse_m,nees";
     assert_eq!(header.join(","), expected);
     assert_eq!(cells.len(), 3);
 
@@ -169,6 +170,7 @@ fn a_record_without_truth_has_empty_rse_and_null_statistics() {
             distances_m: vec![],
             true_theta_deg: None,
             truth: None,
+            covariance: None,
             ..row(t, theta - 1.0, 0.0)
         })
         .collect();
@@ -476,6 +478,7 @@ fn realistic_run(active: bool) -> RunRecord {
                 method: "kalman_filter".into(),
                 robots: vec!["r1".into(), "r2".into()],
                 truth: Some(s),
+                covariance: None,
             });
         }
         t += 0.1;
@@ -542,4 +545,23 @@ fn commands_csv_quotes_details_and_keeps_order() {
     assert_eq!(lines[1], "1.250,r1,\"theta 12.0° out of band, goal (1.0, 2.0)\"");
     assert_eq!(lines[2], "3.500,r2,\"ideal spot is blocked: \"\"pillar\"\"\"");
     assert_eq!(lines.len(), 3);
+}
+
+#[test]
+fn nees_uses_the_published_covariance() {
+    let mut r = row(1.0, 90.0, 0.2);
+    assert_eq!(r.nees(), None, "no covariance");
+    // Error 0.2 m along x, variance 0.01 m² on x: NEES = 0.04 / 0.01 = 4.
+    r.covariance = Some(nalgebra::Matrix3::from_diagonal(&nalgebra::Vector3::new(0.01, 1.0, 1.0)));
+    assert!((r.nees().unwrap() - 4.0).abs() < 1e-9);
+    r.covariance = Some(nalgebra::Matrix3::zeros());
+    assert_eq!(r.nees(), None, "not positive definite");
+    let mut rec = record(vec![r.clone(), r], 2.0);
+    for row in &mut rec.rows {
+        row.trusted = true;
+        row.covariance = Some(nalgebra::Matrix3::from_diagonal(&nalgebra::Vector3::new(0.001, 1.0, 1.0)));
+    }
+    let s = soundmap_sim::report::Summary::new(&rec, &soundmap_sim::report::derived::Derived::new(&rec));
+    assert!((s.nees_mean_trusted.unwrap() - 40.0).abs() < 1e-9);
+    assert_eq!(s.nees_above_chi2_99_trusted_ratio, Some(1.0));
 }

@@ -25,6 +25,9 @@ pub struct Estimate {
     /// The track's state predicted to `stamp`, when a track exists (its
     /// `state` says whether it is tentative, confirmed or lost).
     pub filtered: Option<TrackEstimate>,
+    /// Share of the triangulation's covariance added to the filter's in the
+    /// published covariance (`tracking.correlated_doa_fraction`).
+    pub correlated_doa_fraction: f64,
 }
 
 /// Where the best position of an [`Estimate`] comes from.
@@ -54,10 +57,18 @@ impl Estimate {
         }
     }
 
-    /// Covariance of [`Estimate::position`] (m²).
+    /// Covariance of [`Estimate::position`] (m²). For the filter: its own plus
+    /// `correlated_doa_fraction` × the current triangulation's, the error its
+    /// averaging cannot remove when the DoAs' errors persist.
     pub fn covariance(&self) -> Option<Matrix3<f64>> {
         match (self.best_source(), &self.filtered) {
-            (BestSource::Filter, Some(f)) => Some(f.position_covariance()),
+            (BestSource::Filter, Some(f)) => {
+                let floor = self.triangulation.solution().and_then(|s| s.quality.covariance);
+                Some(
+                    f.position_covariance()
+                        + floor.map_or_else(Matrix3::zeros, |c| c * self.correlated_doa_fraction),
+                )
+            }
             _ => self.triangulation.solution().and_then(|s| s.quality.covariance),
         }
     }

@@ -377,7 +377,16 @@ impl Coordinator {
             return None;
         }
         let triangulation = triangulate(&rays, &self.config.triangulation);
-        Some((Estimate { source_id: 0, stamp: t, robots, triangulation, filtered: None }, newest))
+        let correlated_doa_fraction = self.config.tracking.correlated_doa_fraction;
+        let estimate = Estimate {
+            source_id: 0,
+            stamp: t,
+            robots,
+            triangulation,
+            filtered: None,
+            correlated_doa_fraction,
+        };
+        Some((estimate, newest))
     }
 
     /// Messages queued for robots' streams (commands, cancellations), oldest first.

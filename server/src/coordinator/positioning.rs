@@ -261,10 +261,7 @@ impl Positioning {
             goal.predicted_theta_deg,
             goal.predicted_gdop
         );
-        // The planner's note names the fallback and why; say it once.
-        if goal.used_fallback && !goal.note.as_deref().is_some_and(|n| n.contains("sampling fallback")) {
-            detail.push_str("; sampling fallback");
-        }
+        // A plan from the sampling search says so, and why, in the goal's note.
         if let Some(note) = &goal.note {
             detail.push_str("; ");
             detail.push_str(note);

@@ -75,6 +75,15 @@ pub struct TrackerConfig {
     /// filter fed by one robot slides along its ray while its covariance still
     /// looks small.
     pub support_window_s: f64,
+    /// Share of one triangulation's covariance added to the filter's when a
+    /// filtered estimate is published. In a room, a robot's DoAs carry an error
+    /// that persists while the geometry holds (reflections), so averaging them
+    /// does not bring the error below that of one triangulation of the current
+    /// rays, however small the filter's own covariance grows. 1 keeps that
+    /// floor; 0 trusts the filter's independent-noise model (free field).
+    /// The tracked state itself (and its published `filtered` covariance) is
+    /// unchanged. Default 1.0.
+    pub correlated_doa_fraction: f64,
     /// A confirmed track fed by a single robot (the others' DoAs gated) for
     /// this long is lost and restarts from the next trusted triangulation (s). Default 1.0.
     pub single_robot_timeout_s: f64,
@@ -107,6 +116,7 @@ impl Default for TrackerConfig {
             max_doa_rate_hz: 10.0,
             support_window_s: 0.5,
             single_robot_timeout_s: 1.0,
+            correlated_doa_fraction: 1.0,
         }
     }
 }
@@ -137,6 +147,7 @@ impl TrackerConfig {
             ("support_window_s", self.support_window_s),
             ("max_doa_rate_hz", self.max_doa_rate_hz),
             ("single_robot_timeout_s", self.single_robot_timeout_s),
+            ("correlated_doa_fraction", self.correlated_doa_fraction),
         ];
         for (field, v) in non_negative {
             if !(v.is_finite() && v >= 0.0) {

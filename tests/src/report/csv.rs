@@ -18,6 +18,7 @@
 //! | `robots` | robots whose rays contributed, separated by `;` |
 //! | `tri_x_m`, `tri_y_m`, `tri_z_m` | triangulation beside a filtered estimate (m) |
 //! | `tri_rse_m` | its RSE (m) |
+//! | `nees` | eᵀP⁻¹e of the published estimate against the truth, P its published covariance |
 //!
 //! The set of columns never depends on the data: a value that is absent (no
 //! estimate position, no truth in a replay without truth, no triangulation) is an
@@ -64,6 +65,7 @@ pub fn timeline_header(record: &RunRecord) -> Vec<String> {
             "tri_y_m",
             "tri_z_m",
             "tri_rse_m",
+            "nees",
         ]
         .map(String::from),
     );
@@ -92,6 +94,7 @@ pub fn timeline_csv(record: &RunRecord) -> String {
         cells.push(text(&row.robots.join(";")));
         point(&mut cells, row.triangulation);
         cells.push(opt(row.triangulation_rse_m()));
+        cells.push(opt(row.nees()));
         let _ = writeln!(out, "{}", cells.join(","));
     }
     out

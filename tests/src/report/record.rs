@@ -3,7 +3,7 @@
 //! The runner fills a [`RunRecord`]; [`super::write_reports`] turns it into
 //! `timeline.csv`, `theta_bins.csv`, `summary.json` and the plots.
 
-use nalgebra::Point3;
+use nalgebra::{Matrix3, Point3};
 
 /// One published estimate of the coordinator, with the truth at its stamp.
 #[derive(Clone, Debug, PartialEq)]
@@ -33,12 +33,24 @@ pub struct TimelineRow {
     pub robots: Vec<String>,
     /// True source position at the estimate's stamp (map frame, m), when known.
     pub truth: Option<Point3<f64>>,
+    /// Covariance published with the best estimate (m², map frame), when there is one.
+    pub covariance: Option<Matrix3<f64>>,
 }
 
 impl TimelineRow {
     /// Root square error ‖estimate − truth‖ (m), when both exist.
     pub fn rse_m(&self) -> Option<f64> {
         Some((self.estimate? - self.truth?).norm())
+    }
+
+    /// Normalized estimation error squared, eᵀ P⁻¹ e with e = estimate − truth and
+    /// P the published covariance: χ² with 3 degrees of freedom (mean 3) when the
+    /// covariance is honest. `None` without truth, covariance, or when P is not
+    /// positive definite.
+    pub fn nees(&self) -> Option<f64> {
+        let e = self.estimate? - self.truth?;
+        let chol = self.covariance?.cholesky()?;
+        Some(e.dot(&chol.solve(&e)))
     }
 
     /// RSE of the triangulation beside a filtered estimate (m).

@@ -26,6 +26,9 @@ use super::stats;
 /// RSE below which the paper calls an estimate good (m).
 pub const GOOD_RSE_M: f64 = 0.3;
 
+/// 99th percentile of χ² with 3 degrees of freedom.
+pub const CHI2_3DOF_99: f64 = 11.345;
+
 /// Figures of a run, written as `summary.json` (keys are the field names).
 #[derive(Clone, Debug, PartialEq, Serialize)]
 pub struct Summary {
@@ -87,6 +90,11 @@ pub struct Summary {
     pub rse_median_trusted_m: Option<f64>,
     /// 95th percentile of the RSE of trusted estimates (m).
     pub rse_p95_trusted_m: Option<f64>,
+    /// Mean NEES (eᵀP⁻¹e with the published covariance P) of trusted estimates;
+    /// 3 when the published covariance is honest.
+    pub nees_mean_trusted: Option<f64>,
+    /// Share of trusted estimates whose NEES exceeds χ²₃(0.99) = 11.34 (1 % when honest).
+    pub nees_above_chi2_99_trusted_ratio: Option<f64>,
     /// First time θ is in the band (s since the start); `null` if never.
     pub time_to_band_s: Option<f64>,
     /// Share of the covered time in the band from `time_to_band_s` on.
@@ -134,6 +142,8 @@ impl Summary {
         let out_band = select(&d.rse_m, |i| !d.in_band[i]);
         let trusted = select(&d.rse_m, |i| rows[i].trusted);
 
+        let nees_trusted: Vec<f64> = rows.iter().filter(|r| r.trusted).filter_map(|r| r.nees()).collect();
+
         let first_in_band = d.in_band.iter().position(|b| *b);
         let time_to_band_s = first_in_band.map(|i| rows[i].t_s);
         let (after_ratio, after_rse) = match first_in_band {
@@ -176,6 +186,10 @@ impl Summary {
             rse_p95_out_of_band_m: stats::p95(&out_band),
             rse_median_trusted_m: stats::median(&trusted),
             rse_p95_trusted_m: stats::p95(&trusted),
+            nees_mean_trusted: stats::mean(&nees_trusted),
+            nees_above_chi2_99_trusted_ratio: (!nees_trusted.is_empty()).then(|| {
+                nees_trusted.iter().filter(|v| **v > CHI2_3DOF_99).count() as f64 / nees_trusted.len() as f64
+            }),
             time_to_band_s,
             in_band_ratio_after_convergence: after_ratio,
             rse_median_after_convergence_m: stats::median(&after_rse),

@@ -43,6 +43,7 @@ fn lines(with_triangulation: bool) -> Vec<Line> {
         ("RSE p95, θ in band", |s| metres(s.rse_p95_in_band_m)),
         ("RSE p95, θ out of band", |s| metres(s.rse_p95_out_of_band_m)),
         ("RSE p95, trusted", |s| metres(s.rse_p95_trusted_m)),
+        ("NEES mean, trusted (ideal 3)", |s| s.nees_mean_trusted.map_or("—".into(), |v| format!("{v:.2}"))),
         ("estimates in / out band", |s| format!("{} / {}", s.estimates_in_band, s.estimates_out_of_band)),
         ("time in band", |s| percent(s.time_in_band_ratio)),
         ("time to band", |s| seconds(s.time_to_band_s)),
@@ -94,8 +95,11 @@ pub fn format_summary_table(summary: &Summary, out_dir: &Path) -> String {
     let mut out = format!("soundmap-sim report: {}\n", summary.name);
     out.push_str(&table(&[summary], &["value"]));
     let _ = writeln!(out, "{}", band_line(summary));
-    let _ =
-        writeln!(out, "reports: {}", out_dir.join("{timeline.csv, theta_bins.csv, summary.json}").display());
+    let _ = writeln!(
+        out,
+        "reports: {}",
+        out_dir.join("{timeline.csv, theta_bins.csv, summary.json, commands.csv}").display()
+    );
     let _ = writeln!(
         out,
         "plots:   {}",
