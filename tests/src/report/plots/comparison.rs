@@ -6,7 +6,7 @@ use plotters::coord::Shift;
 use plotters::prelude::*;
 
 use super::style::{
-    BAND_FILL, axis_desc_style, label_style, line_width, polylines, rse_axis_desc, rse_axis_top,
+    BAND_FILL, draw_legend, label_style, line_width, polylines, rse_axis_desc, rse_axis_top, styled_mesh,
     time_axis_end, title_style,
 };
 use super::{Figure, PlotResult};
@@ -55,16 +55,9 @@ impl Figure for ComparisonTheta<'_> {
             .x_label_area_size(45)
             .y_label_area_size(75)
             .build_cartesian_2d(0.0..t_end, 0.0..180.0)?;
-        chart
-            .configure_mesh()
-            .x_desc("time (s)")
-            .y_desc("θ (°)")
-            .y_label_formatter(&|v| format!("{v:.0}"))
-            .axis_desc_style(axis_desc_style())
-            .label_style(label_style())
-            .light_line_style(RGBColor(245, 245, 245))
-            .bold_line_style(RGBColor(225, 225, 225))
-            .draw()?;
+        let mut mesh = chart.configure_mesh();
+        mesh.x_desc("time (s)").y_desc("θ (°)").y_label_formatter(&|v| format!("{v:.0}"));
+        styled_mesh(&mut mesh).draw()?;
         let (lo, hi) = self.on.0.theta_band_deg;
         if lo.is_finite() && hi.is_finite() && lo < hi {
             let band = Rectangle::new(
@@ -105,15 +98,9 @@ impl Figure for ComparisonTheta<'_> {
             .x_label_area_size(55)
             .y_label_area_size(75)
             .build_cartesian_2d(0.0..t_end, 0.0..rse_top)?;
-        chart
-            .configure_mesh()
-            .x_desc("time (s)")
-            .y_desc(rse_axis_desc(rse_top, clipped))
-            .axis_desc_style(axis_desc_style())
-            .label_style(label_style())
-            .light_line_style(RGBColor(245, 245, 245))
-            .bold_line_style(RGBColor(225, 225, 225))
-            .draw()?;
+        let mut mesh = chart.configure_mesh();
+        mesh.x_desc("time (s)").y_desc(rse_axis_desc(rse_top, clipped));
+        styled_mesh(&mut mesh).draw()?;
         let mut labelled = false;
         for (r, d, colour, name) in self.runs() {
             let samples = r.rows.iter().zip(&d.rse_m).map(|(row, e)| (row.t_s, *e));
@@ -129,14 +116,7 @@ impl Figure for ComparisonTheta<'_> {
             }
         }
         if labelled {
-            chart
-                .configure_series_labels()
-                .position(SeriesLabelPosition::UpperRight)
-                .background_style(WHITE.mix(0.85))
-                .border_style(BLACK)
-                .label_font(label_style())
-                .margin(10)
-                .draw()?;
+            draw_legend(chart.configure_series_labels())?;
         }
         Ok(())
     }

@@ -5,8 +5,8 @@ use plotters::coord::Shift;
 use plotters::prelude::*;
 
 use super::style::{
-    RSE_RED, axis_desc_style, label_style, line_width, polylines, robot_colour, rse_axis_desc, rse_axis_top,
-    time_axis_end, title_style,
+    RSE_RED, axis_desc_style, draw_legend, label_style, line_width, polylines, robot_colour, rse_axis_desc,
+    rse_axis_top, styled_mesh, time_axis_end, title_style,
 };
 use super::{Figure, PlotResult, note_centred};
 use crate::report::csv::distance_columns;
@@ -45,15 +45,9 @@ impl Figure for DistancesRse<'_> {
             .right_y_label_area_size(75)
             .build_cartesian_2d(0.0..t_end, 0.0..d_top)?
             .set_secondary_coord(0.0..t_end, 0.0..rse_top);
-        chart
-            .configure_mesh()
-            .x_desc("time (s)")
-            .y_desc("distance robot–source (m)")
-            .axis_desc_style(axis_desc_style())
-            .label_style(label_style())
-            .light_line_style(RGBColor(245, 245, 245))
-            .bold_line_style(RGBColor(225, 225, 225))
-            .draw()?;
+        let mut mesh = chart.configure_mesh();
+        mesh.x_desc("time (s)").y_desc("distance robot–source (m)");
+        styled_mesh(&mut mesh).draw()?;
         chart
             .configure_secondary_axes()
             .y_desc(rse_axis_desc(rse_top, clipped))
@@ -88,14 +82,7 @@ impl Figure for DistancesRse<'_> {
             }
         }
         if labelled {
-            chart
-                .configure_series_labels()
-                .position(SeriesLabelPosition::UpperRight)
-                .background_style(WHITE.mix(0.85))
-                .border_style(BLACK)
-                .label_font(label_style())
-                .margin(10)
-                .draw()?;
+            draw_legend(chart.configure_series_labels())?;
         } else {
             let msg = "no truth in this record: no distances, no RSE";
             note_centred(&chart.plotting_area().strip_coord_spec(), msg)?;

@@ -6,7 +6,9 @@ use plotters::coord::Shift;
 use plotters::prelude::*;
 use plotters::style::text_anchor::{HPos, Pos, VPos};
 
-use super::style::{BAND_FILL, axis_desc_style, label_style, rse_axis_desc, rse_axis_top, title_style};
+use super::style::{
+    BAND_FILL, draw_legend, label_style, rse_axis_desc, rse_axis_top, styled_mesh, title_style,
+};
 use super::{Figure, PlotResult};
 use crate::report::bins::ThetaBin;
 use crate::report::derived::{Derived, ThetaSource};
@@ -69,17 +71,12 @@ impl Figure for RseVsTheta<'_> {
             .y_label_area_size(75)
             .margin_top(40)
             .build_cartesian_2d(0.0..180.0, 0.0..top)?;
-        chart
-            .configure_mesh()
-            .x_desc(theta_desc)
+        let mut mesh = chart.configure_mesh();
+        mesh.x_desc(theta_desc)
             .y_desc(rse_axis_desc(top, clipped))
-            .axis_desc_style(axis_desc_style())
-            .label_style(label_style())
             .x_labels(13)
-            .x_label_formatter(&|v| format!("{v:.0}"))
-            .light_line_style(RGBColor(245, 245, 245))
-            .bold_line_style(RGBColor(225, 225, 225))
-            .draw()?;
+            .x_label_formatter(&|v| format!("{v:.0}"));
+        styled_mesh(&mut mesh).draw()?;
         // Sample count of each bin above the plot, at the bin's centre (root pixels).
         let count_style = label_style().pos(Pos::new(HPos::Center, VPos::Bottom));
         for b in self.bins {
@@ -152,14 +149,7 @@ impl Figure for RseVsTheta<'_> {
                 .legend(move |(x, y)| Circle::new((x + 12, y), 5, colour.filled()));
         }
 
-        chart
-            .configure_series_labels()
-            .position(SeriesLabelPosition::UpperRight)
-            .background_style(WHITE.mix(0.85))
-            .border_style(BLACK)
-            .label_font(label_style())
-            .margin(10)
-            .draw()?;
+        draw_legend(chart.configure_series_labels())?;
         Ok(())
     }
 }

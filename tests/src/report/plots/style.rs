@@ -3,6 +3,8 @@
 
 use std::sync::OnceLock;
 
+use plotters::chart::{MeshStyle, SeriesLabelStyle};
+use plotters::coord::CoordTranslate;
 use plotters::prelude::*;
 use plotters::style::FontStyle;
 
@@ -150,6 +152,30 @@ pub fn line_width(points: usize) -> u32 {
 pub fn time_axis_end(duration_s: f64, last_t_s: Option<f64>) -> f64 {
     let end = duration_s.max(last_t_s.unwrap_or(0.0));
     if end.is_finite() && end > 0.0 { end } else { 1.0 }
+}
+
+/// The grid and text of every chart's axes: house fonts, faint light lines,
+/// grey bold lines.
+pub fn styled_mesh<'m, 'a, 'b, X: Ranged, Y: Ranged, DB: DrawingBackend>(
+    mesh: &'m mut MeshStyle<'a, 'b, X, Y, DB>,
+) -> &'m mut MeshStyle<'a, 'b, X, Y, DB> {
+    mesh.axis_desc_style(axis_desc_style())
+        .label_style(label_style())
+        .light_line_style(RGBColor(245, 245, 245))
+        .bold_line_style(RGBColor(225, 225, 225))
+}
+
+/// Draws a chart's legend: upper right, on a white box with a black border.
+pub fn draw_legend<'a, 'b, DB: DrawingBackend + 'a, CT: CoordTranslate>(
+    mut legend: SeriesLabelStyle<'a, 'b, DB, CT>,
+) -> Result<(), DrawingAreaErrorKind<DB::ErrorType>> {
+    legend
+        .position(SeriesLabelPosition::UpperRight)
+        .background_style(WHITE.mix(0.85))
+        .border_style(BLACK)
+        .label_font(label_style())
+        .margin(10)
+        .draw()
 }
 
 #[cfg(test)]

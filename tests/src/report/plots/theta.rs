@@ -5,8 +5,8 @@ use plotters::coord::Shift;
 use plotters::prelude::*;
 
 use super::style::{
-    BAND_FILL, RSE_RED, THETA_BLUE, axis_desc_style, label_style, line_width, polylines, rse_axis_desc,
-    rse_axis_top, time_axis_end, title_style,
+    BAND_FILL, RSE_RED, THETA_BLUE, axis_desc_style, draw_legend, label_style, line_width, polylines,
+    rse_axis_desc, rse_axis_top, styled_mesh, time_axis_end, title_style,
 };
 use super::{Figure, PlotResult};
 use crate::report::derived::Derived;
@@ -42,16 +42,9 @@ impl Figure for ThetaRse<'_> {
             .right_y_label_area_size(75)
             .build_cartesian_2d(0.0..t_end, 0.0..180.0)?
             .set_secondary_coord(0.0..t_end, 0.0..rse_top);
-        chart
-            .configure_mesh()
-            .x_desc("time (s)")
-            .y_desc("θ (°)")
-            .y_label_formatter(&|v| format!("{v:.0}"))
-            .axis_desc_style(axis_desc_style())
-            .label_style(label_style())
-            .light_line_style(RGBColor(245, 245, 245))
-            .bold_line_style(RGBColor(225, 225, 225))
-            .draw()?;
+        let mut mesh = chart.configure_mesh();
+        mesh.x_desc("time (s)").y_desc("θ (°)").y_label_formatter(&|v| format!("{v:.0}"));
+        styled_mesh(&mut mesh).draw()?;
         chart
             .configure_secondary_axes()
             .y_desc(rse_axis_desc(rse_top, clipped))
@@ -104,14 +97,7 @@ impl Figure for ThetaRse<'_> {
                     .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 24, y)], RSE_RED.stroke_width(3)));
             }
         }
-        chart
-            .configure_series_labels()
-            .position(SeriesLabelPosition::UpperRight)
-            .background_style(WHITE.mix(0.85))
-            .border_style(BLACK)
-            .label_font(label_style())
-            .margin(10)
-            .draw()?;
+        draw_legend(chart.configure_series_labels())?;
         Ok(())
     }
 }
