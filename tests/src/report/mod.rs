@@ -106,11 +106,11 @@ fn validate(record: &RunRecord) -> Result<(), SimError> {
 }
 
 /// `commands.csv` as text: a header, then one line per command in the order
-/// received; the detail is quoted (it holds commas), with `"` doubled.
+/// received; text cells are quoted as in `timeline.csv` ([`csv::text`]).
 pub fn commands_csv(record: &RunRecord) -> String {
     let mut out = String::from("t_s,robot,detail\n");
     for (t_s, robot, detail) in &record.commands {
-        out.push_str(&format!("{t_s:.3},{robot},\"{}\"\n", detail.replace('"', "\"\"")));
+        out.push_str(&format!("{t_s:.3},{},{}\n", csv::text(robot), csv::text(detail)));
     }
     out
 }
