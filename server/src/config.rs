@@ -7,9 +7,8 @@ use std::path::{Path, PathBuf};
 
 use serde::Deserialize;
 
-use crate::coordinator::positioning::check_band;
 use crate::error::ServerError;
-use crate::planner::{ConfigError as PlannerConfigError, PlannerConfig};
+use crate::planner::{ConfigError as PlannerConfigError, PlannerConfig, ThetaBand};
 use crate::tracking::{TrackerConfig, TrackerConfigError};
 use crate::triangulation::{RobustLoss, TriangulationConfig};
 
@@ -298,7 +297,7 @@ impl CoordinatorConfig {
             }
         }
         if let Err(e) =
-            check_band(ap.theta_min_deg, ap.theta_max_deg, self.planner.theta_hysteresis_deg, false)
+            ThetaBand::new(ap.theta_min_deg, ap.theta_max_deg, self.planner.theta_hysteresis_deg, false)
         {
             return err(&format!("active_positioning.{}", e.field), e.problem.to_string());
         }

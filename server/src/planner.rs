@@ -21,10 +21,11 @@
 //! 5. every waypoint is checked against the hard constraints (step, range,
 //!    free space with clearance, separation) before it becomes a [`Goal`].
 //!
-//! Submodules: [`config`], [`free_space`], [`bearings`], [`assignment`],
+//! Submodules: [`band`] (the θ band), [`config`], [`free_space`], [`bearings`], [`assignment`],
 //! [`pose`], `cycle`, `qp`, `sampling`, `waypoints`, `hysteresis`, and the input/outcome types.
 
 pub mod assignment;
+pub mod band;
 pub mod bearings;
 pub mod config;
 mod cycle;
@@ -40,6 +41,7 @@ mod waypoints;
 use nalgebra::Point2;
 use soundmap_proto::Stamp;
 
+pub use band::ThetaBand;
 pub use config::{ConfigError, PlannerConfig, SamplingConfig};
 pub use free_space::{Blocked, FreeSpace, FreeSpaceConfig, HalfPlane};
 pub use input::{PlannerInput, RobotState, SourceEstimate};

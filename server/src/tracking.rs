@@ -27,6 +27,7 @@ pub mod config;
 pub mod filter;
 pub mod lag_buffer;
 pub mod lifecycle;
+mod outcome;
 mod step;
 
 use nalgebra::{Matrix3, Matrix6, Point3, Vector3};
@@ -35,6 +36,7 @@ use soundmap_proto::Stamp;
 pub use config::{TrackerConfig, TrackerConfigError};
 pub use filter::{CvState, ProcessNoise, Unusable};
 pub use lifecycle::{LossReason, TrackState};
+pub use outcome::UpdateOutcome;
 
 use crate::ray::Ray;
 use crate::stats::chi2_quantile;
@@ -43,31 +45,6 @@ use filter::doa_innovation;
 use lag_buffer::{Insertion, LagBuffer, Refusal};
 use lifecycle::{Confirmation, check_loss};
 use step::{Observation, Snapshot, StepParams, step};
-
-/// What became of one DoA given to [`SourceTracker::update`].
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub enum UpdateOutcome {
-    /// Passed the gate and updated the track.
-    Applied {
-        /// Its normalized innovation squared (χ², 2 dof).
-        nis: f64,
-    },
-    /// Failed the χ² gate: counted, not applied.
-    Gated {
-        /// Its NIS.
-        nis: f64,
-        /// The gate it exceeded (χ² 2 dof at the association or maintenance probability).
-        threshold: f64,
-    },
-    /// The geometry or the numbers make the DoA useless (counted, not applied).
-    Unusable(Unusable),
-    /// Older than the fixed lag: dropped and counted.
-    TooLate,
-    /// Stamped at or before the track's initialization: dropped and counted.
-    BeforeTrack,
-    /// There is no active track (none yet, or lost).
-    NoTrack,
-}
 
 /// What became of an initialization.
 #[derive(Clone, Copy, Debug, PartialEq)]

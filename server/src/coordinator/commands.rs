@@ -8,8 +8,10 @@ use std::collections::VecDeque;
 use nalgebra::Isometry3;
 use soundmap_proto::{CommandAck, CommandProgress, CommandState, RepositionCommand, RobotId, Stamp};
 
-use super::robots::{ConnId, RobotEntry};
 use crate::error::ServerError;
+
+/// Identifies one stream (connection) of a robot.
+pub type ConnId = u64;
 
 /// Earlier command ids remembered per robot.
 const RECENT_COMMANDS: usize = 16;
@@ -113,68 +115,52 @@ impl CommandLog {
             *state = Some(CommandState::Canceled);
         }
     }
-}
 
-/// The robot answers a command: accepted (now executing) or refused (remembered).
-/// Answers to earlier commands are accepted and change nothing.
-pub fn acknowledge(entry: &mut RobotEntry, now: Stamp, ack: &CommandAck) -> Result<(), ServerError> {
-    let log = &mut entry.commands;
-    let current = log.current.as_ref().is_some_and(|(c, _)| c.command_id == ack.command_id);
-    if current {
-        if !ack.accepted {
-            let reason = if ack.reason.is_empty() { "refused".into() } else { ack.reason.clone() };
-            log.refuse(now, reason);
-        } else if let Some((_, state @ None)) = &mut log.current {
-            *state = Some(CommandState::Executing);
+    /// The robot answers a command: accepted (now executing) or refused
+    /// (remembered). Answers to earlier commands are accepted and change nothing.
+    pub fn acknowledge(&mut self, now: Stamp, ack: &CommandAck) -> Result<(), ServerError> {
+        let current = self.current.as_ref().is_some_and(|(c, _)| c.command_id == ack.command_id);
+        if current {
+            if !ack.accepted {
+                let reason = if ack.reason.is_empty() { "refused".into() } else { ack.reason.clone() };
+                self.refuse(now, reason);
+            } else if let Some((_, state @ None)) = &mut self.current {
+                *state = Some(CommandState::Executing);
+            }
+            return Ok(());
         }
-        return Ok(());
+        if self.known(ack.command_id) {
+            return Ok(());
+        }
+        Err(ServerError::UnknownCommand { field: "command_ack.command_id", command_id: ack.command_id })
     }
-    if log.known(ack.command_id) {
-        return Ok(());
-    }
-    Err(ServerError::UnknownCommand { field: "command_ack.command_id", command_id: ack.command_id })
-}
 
-/// The robot reports progress. Reports on earlier commands (e.g. `CANCELED`
-/// when a newer one replaced them) are accepted and change nothing.
-pub fn progress(entry: &mut RobotEntry, now: Stamp, p: &CommandProgress) -> Result<(), ServerError> {
-    let log = &mut entry.commands;
-    let current = log.current.as_ref().is_some_and(|(c, _)| c.command_id == p.command_id);
-    if current {
-        if p.state == CommandState::Failed {
-            let reason = if p.detail.is_empty() { "failed".into() } else { p.detail.clone() };
-            log.refuse(now, reason);
-        } else if let Some((_, state)) = &mut log.current {
-            *state = Some(p.state);
+    /// The robot reports progress. Reports on earlier commands (e.g. `CANCELED`
+    /// when a newer one replaced them) are accepted and change nothing.
+    pub fn progress(&mut self, now: Stamp, p: &CommandProgress) -> Result<(), ServerError> {
+        let current = self.current.as_ref().is_some_and(|(c, _)| c.command_id == p.command_id);
+        if current {
+            if p.state == CommandState::Failed {
+                let reason = if p.detail.is_empty() { "failed".into() } else { p.detail.clone() };
+                self.refuse(now, reason);
+            } else if let Some((_, state)) = &mut self.current {
+                *state = Some(p.state);
+            }
+            return Ok(());
         }
-        return Ok(());
+        if self.known(p.command_id) {
+            return Ok(());
+        }
+        Err(ServerError::UnknownCommand { field: "command_progress.command_id", command_id: p.command_id })
     }
-    if log.known(p.command_id) {
-        return Ok(());
-    }
-    Err(ServerError::UnknownCommand { field: "command_progress.command_id", command_id: p.command_id })
 }
 
 #[cfg(test)]
 mod tests {
     use nalgebra::Point3;
-    use soundmap_proto::{ArrayInfo, Hello, RepositionReason};
+    use soundmap_proto::RepositionReason;
 
     use super::*;
-
-    fn entry() -> RobotEntry {
-        let hello = Hello {
-            robot_id: RobotId::parse("r", "id").unwrap(),
-            array: ArrayInfo {
-                base_from_array: Isometry3::identity(),
-                microphone_count: 4,
-                preset: None,
-                microphone_positions: vec![],
-            },
-            software_version: String::new(),
-        };
-        RobotEntry::new(hello, 0, 1, Stamp::ZERO)
-    }
 
     fn command(id: u64, x: f64) -> RepositionCommand {
         RepositionCommand {
@@ -198,40 +184,40 @@ mod tests {
 
     #[test]
     fn reports_follow_the_current_command_and_earlier_ones_are_ignored() {
-        let mut e = entry();
+        let mut log = CommandLog::default();
         let now = Stamp::from_ns(100);
-        assert!(acknowledge(&mut e, now, &ack(1, true)).is_err(), "never issued");
-        e.commands.issue(command(1, 1.0));
-        assert_eq!(e.commands.active_goal(now).map(|g| g.translation.x), Some(1.0), "sent, not yet acked");
-        acknowledge(&mut e, now, &ack(1, true)).unwrap();
-        assert_eq!(e.commands.current.as_ref().unwrap().1, Some(CommandState::Executing));
-        e.commands.issue(command(2, 2.0));
+        assert!(log.acknowledge(now, &ack(1, true)).is_err(), "never issued");
+        log.issue(command(1, 1.0));
+        assert_eq!(log.active_goal(now).map(|g| g.translation.x), Some(1.0), "sent, not yet acked");
+        log.acknowledge(now, &ack(1, true)).unwrap();
+        assert_eq!(log.current.as_ref().unwrap().1, Some(CommandState::Executing));
+        log.issue(command(2, 2.0));
         // The replaced command ends CANCELED on the robot: accepted, changes nothing.
-        progress(&mut e, now, &report(1, CommandState::Canceled)).unwrap();
-        assert_eq!(e.commands.current.as_ref().unwrap().1, None);
-        assert_eq!(e.commands.active_goal(now).map(|g| g.translation.x), Some(2.0));
-        assert!(e.commands.active_goal(Stamp::from_ns(10_001)).is_none(), "deadline passed");
-        progress(&mut e, now, &report(2, CommandState::Succeeded)).unwrap();
-        assert!(e.commands.active_goal(now).is_none());
-        assert!(e.commands.cancellable().is_none());
+        log.progress(now, &report(1, CommandState::Canceled)).unwrap();
+        assert_eq!(log.current.as_ref().unwrap().1, None);
+        assert_eq!(log.active_goal(now).map(|g| g.translation.x), Some(2.0));
+        assert!(log.active_goal(Stamp::from_ns(10_001)).is_none(), "deadline passed");
+        log.progress(now, &report(2, CommandState::Succeeded)).unwrap();
+        assert!(log.active_goal(now).is_none());
+        assert!(log.cancellable().is_none());
         assert!(matches!(
-            progress(&mut e, now, &report(7, CommandState::Executing)),
+            log.progress(now, &report(7, CommandState::Executing)),
             Err(ServerError::UnknownCommand { field: "command_progress.command_id", command_id: 7 })
         ));
     }
 
     #[test]
     fn refusals_and_failures_are_remembered() {
-        let mut e = entry();
-        e.commands.issue(command(1, 1.0));
-        acknowledge(&mut e, Stamp::from_ns(5), &ack(1, false)).unwrap();
-        let r = e.commands.refused.clone().unwrap();
+        let mut log = CommandLog::default();
+        log.issue(command(1, 1.0));
+        log.acknowledge(Stamp::from_ns(5), &ack(1, false)).unwrap();
+        let r = log.refused.clone().unwrap();
         assert_eq!((r.command_id, r.at, r.reason.as_str()), (1, Stamp::from_ns(5), "refused"));
-        assert!(e.commands.active_goal(Stamp::from_ns(6)).is_none());
-        e.commands.issue(command(2, 3.0));
-        progress(&mut e, Stamp::from_ns(9), &report(2, CommandState::Failed)).unwrap();
-        let r = e.commands.refused.clone().unwrap();
+        assert!(log.active_goal(Stamp::from_ns(6)).is_none());
+        log.issue(command(2, 3.0));
+        log.progress(Stamp::from_ns(9), &report(2, CommandState::Failed)).unwrap();
+        let r = log.refused.clone().unwrap();
         assert_eq!((r.command_id, r.goal.translation.x, r.reason.as_str()), (2, 3.0, "stuck"));
-        assert_eq!(e.commands.current.as_ref().unwrap().1, Some(CommandState::Failed));
+        assert_eq!(log.current.as_ref().unwrap().1, Some(CommandState::Failed));
     }
 }

@@ -24,10 +24,10 @@ use soundmap_proto::{
     CommandAck, CommandProgress, Hello, Limits, Observation, Problem, RobotId, Stamp, ValidationError,
 };
 
-pub use commands::{Outbound, Outgoing, Refusal};
+pub use commands::{CommandLog, ConnId, Outbound, Outgoing, Refusal};
 pub use estimate::{BestSource, Estimate};
 pub use positioning::{PlanKind, PlannerStatus, PositioningSettings, PositioningUpdate};
-pub use robots::{ConnId, Liveness, RobotEntry, StoredObservation};
+pub use robots::{Liveness, RobotEntry, StoredObservation};
 pub use tracking::TrackingCounters;
 
 use crate::config::CoordinatorConfig;
@@ -292,7 +292,7 @@ impl Coordinator {
     pub fn command_ack(&mut self, now: Stamp, conn: ConnId, ack: &CommandAck) -> Result<(), ServerError> {
         let entry = self.entry_mut(conn, "command_ack")?;
         entry.last_seen = now;
-        commands::acknowledge(entry, now, ack)
+        entry.commands.acknowledge(now, ack)
     }
 
     /// A robot reports progress on a command.
@@ -304,7 +304,7 @@ impl Coordinator {
     ) -> Result<(), ServerError> {
         let entry = self.entry_mut(conn, "command_progress")?;
         entry.last_seen = now;
-        commands::progress(entry, now, p)
+        entry.commands.progress(now, p)
     }
 
     /// Housekeeping: applies queued DoAs to the tracker, checks its lifecycle,

@@ -7,7 +7,9 @@ use soundmap_proto::{Problem, RepositionCommand, RepositionReason, Stamp, Valida
 
 use crate::config::{ActivePositioningConfig, CoordinatorConfig, planner_error};
 use crate::error::ServerError;
-use crate::planner::{Goal, HoldReason, InfeasibleReason, PlanOutcome, Planner, PlannerConfig, PlannerInput};
+use crate::planner::{
+    Goal, HoldReason, InfeasibleReason, PlanOutcome, Planner, PlannerConfig, PlannerInput, ThetaBand,
+};
 
 /// Longest operator text of a command (the contract's text limit).
 const MAX_DETAIL_CHARS: usize = 256;
@@ -32,58 +34,6 @@ pub struct PositioningUpdate {
     pub theta_min_deg: Option<f64>,
     /// New upper edge (degrees).
     pub theta_max_deg: Option<f64>,
-}
-
-/// Checks a θ band: both edges finite, 0 ≤ min < max ≤ 180, wider than twice
-/// the planner's θ hysteresis h (else no θ could end a correction), and
-/// containing 90° ± h: the planner always aims at the Fisher-optimal geometry
-/// (90° between two robots), so a band without it could never be satisfied and
-/// would re-task the robots forever. Errors name `theta_min_deg` or
-/// `theta_max_deg`; relations between the two name `theta_max_deg` when
-/// `blame_max`, else `theta_min_deg`.
-pub fn check_band(min: f64, max: f64, hysteresis_deg: f64, blame_max: bool) -> Result<(), ValidationError> {
-    for (field, v, ok, range) in [
-        ("theta_min_deg", min, (0.0..180.0).contains(&min), "[0, 180)"),
-        ("theta_max_deg", max, max > 0.0 && max <= 180.0, "(0, 180]"),
-    ] {
-        if !v.is_finite() {
-            return Err(ValidationError::new(field, Problem::NonFinite(v)));
-        }
-        if !ok {
-            return Err(ValidationError::new(field, Problem::OutOfRange { value: v, range }));
-        }
-    }
-    let field = if blame_max { "theta_max_deg" } else { "theta_min_deg" };
-    if min >= max {
-        return Err(ValidationError::new(
-            field,
-            Problem::Invalid(format!(
-                "band {min}°–{max}° is empty: theta_min_deg must be below theta_max_deg"
-            )),
-        ));
-    }
-    if max - min <= 2.0 * hysteresis_deg {
-        return Err(ValidationError::new(
-            field,
-            Problem::Invalid(format!(
-                "band {min}°–{max}° is not wider than twice planner.theta_hysteresis_deg ({hysteresis_deg}°)"
-            )),
-        ));
-    }
-    for (field, outside) in
-        [("theta_min_deg", min + hysteresis_deg >= 90.0), ("theta_max_deg", max - hysteresis_deg <= 90.0)]
-    {
-        if outside {
-            return Err(ValidationError::new(
-                field,
-                Problem::Invalid(format!(
-                    "band {min}°–{max}° must contain 90° ± planner.theta_hysteresis_deg ({hysteresis_deg}°), \
-                     the geometry the planner aims at"
-                )),
-            ));
-        }
-    }
-    Ok(())
 }
 
 /// Kind of the planner's latest decision.
@@ -177,7 +127,7 @@ impl Positioning {
         let min = u.theta_min_deg.unwrap_or(self.settings.theta_min_deg);
         let max = u.theta_max_deg.unwrap_or(self.settings.theta_max_deg);
         let blame_max = u.theta_min_deg.is_none();
-        check_band(min, max, self.planner_config.theta_hysteresis_deg, blame_max)?;
+        ThetaBand::new(min, max, self.planner_config.theta_hysteresis_deg, blame_max)?;
         if (min, max) != (self.settings.theta_min_deg, self.settings.theta_max_deg) {
             let cfg = PlannerConfig { theta_min_deg: min, theta_max_deg: max, ..self.planner_config.clone() };
             self.planner = Planner::new(cfg.clone()).map_err(|e| {
@@ -322,29 +272,5 @@ fn infeasible_key(r: &InfeasibleReason) -> &'static str {
         InfeasibleReason::NoFreeSpotAroundSource { .. } => "no_free_spot",
         InfeasibleReason::RobotStuck { .. } => "robot_stuck",
         InfeasibleReason::NoJointPlacement { .. } => "no_joint_placement",
-    }
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn bands_are_checked_naming_the_field() {
-        let field = |min, max, blame_max| check_band(min, max, 5.0, blame_max).unwrap_err().field;
-        assert!(check_band(40.0, 140.0, 5.0, false).is_ok());
-        assert!(check_band(0.0, 180.0, 5.0, false).is_ok());
-        assert!(check_band(84.0, 96.0, 5.0, false).is_ok());
-        assert_eq!(field(-0.1, 140.0, false), "theta_min_deg");
-        assert_eq!(field(f64::NAN, 140.0, true), "theta_min_deg");
-        assert_eq!(field(40.0, 180.5, false), "theta_max_deg");
-        assert_eq!(field(40.0, f64::INFINITY, false), "theta_max_deg");
-        assert_eq!(field(100.0, 90.0, false), "theta_min_deg");
-        assert_eq!(field(100.0, 90.0, true), "theta_max_deg");
-        assert_eq!(field(86.0, 94.0, true), "theta_max_deg", "narrower than 2h");
-        assert_eq!(field(86.0, 140.0, false), "theta_min_deg", "90° − h outside");
-        assert_eq!(field(40.0, 94.0, false), "theta_max_deg", "90° + h outside");
-        let e = check_band(100.0, 170.0, 5.0, false).unwrap_err().to_string();
-        assert!(e.starts_with("theta_min_deg: ") && e.contains("90°"), "{e}");
     }
 }

@@ -6,11 +6,8 @@ use std::collections::VecDeque;
 use nalgebra::Isometry3;
 use soundmap_proto::{Hello, Stamp};
 
-use super::commands::CommandLog;
+use super::commands::{CommandLog, ConnId};
 use crate::ray::Ray;
-
-/// Identifies one stream (connection) of a robot.
-pub type ConnId = u64;
 
 /// Liveness of a robot, as monitoring reports it.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]

@@ -6,9 +6,9 @@ use std::cmp::Ordering;
 
 use soundmap_proto::Stamp;
 
-use super::UpdateOutcome;
 use super::filter::{CvState, DoaNoiseModel, ProcessNoise, Unusable, doa_innovation, joseph_update};
 use super::lifecycle::{Confirmation, LifecycleRules};
+use super::outcome::UpdateOutcome;
 use crate::ray::Ray;
 
 /// A DoA as buffered: the robot it came from and its ray. Ordered by robot
