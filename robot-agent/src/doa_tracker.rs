@@ -36,18 +36,9 @@ use nalgebra::{Unit, Vector3};
 
 use crate::error::AgentError;
 use crate::srp::PotentialSource;
-use crate::srp::diffuse::DiffuseMap;
+pub use crate::srp::diffuse::NoiseModel;
 pub use config::TrackerConfig;
 use sphere_kf::SphereKf;
-
-/// How coherent the localizer's peaks are on noise alone (PHAT coherence).
-#[derive(Clone, Debug, PartialEq)]
-pub struct NoiseModel {
-    /// Expected coherence of diffuse noise, per direction.
-    pub diffuse: DiffuseMap,
-    /// Standard deviation of the coherence of incoherent noise at one direction.
-    pub sigma: f64,
-}
 
 /// Largest accepted [`TrackerConfig::max_tracks`].
 pub const MAX_TRACKS: usize = 64;

@@ -276,8 +276,8 @@ impl Srp {
     /// The coherence of peaks on noise alone: the diffuse-noise response per
     /// direction and the standard deviation `1/√(2·pairs·bins)` of incoherent
     /// noise's coherence at one direction.
-    pub fn noise_model(&self) -> crate::doa_tracker::NoiseModel {
-        crate::doa_tracker::NoiseModel {
+    pub fn noise_model(&self) -> diffuse::NoiseModel {
+        diffuse::NoiseModel {
             diffuse: self.diffuse.clone(),
             sigma: 1.0 / (2.0 * self.pairs() as f64 * self.cc.band.len() as f64).sqrt(),
         }

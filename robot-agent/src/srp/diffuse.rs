@@ -18,6 +18,17 @@ use nalgebra::Vector3;
 
 use super::grid::SphereGrid;
 
+/// How coherent the localizer's peaks are on noise alone (PHAT coherence):
+/// what the DoA tracker needs to tell a source from noise (see
+/// [`crate::srp::Srp::noise_model`]).
+#[derive(Clone, Debug, PartialEq)]
+pub struct NoiseModel {
+    /// Expected coherence of diffuse noise, per direction.
+    pub diffuse: DiffuseMap,
+    /// Standard deviation of the coherence of incoherent noise at one direction.
+    pub sigma: f64,
+}
+
 /// Expected diffuse-noise coherence of the steered response, per direction.
 #[derive(Clone, Debug, PartialEq)]
 pub struct DiffuseMap {

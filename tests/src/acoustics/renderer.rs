@@ -167,6 +167,13 @@ pub struct ArrayRenderer {
     ramp: Vec<f32>,
 }
 
+impl Scene {
+    /// A renderer for one microphone array in this scene.
+    pub fn renderer(&self, config: ArrayConfig) -> Result<ArrayRenderer, SimError> {
+        ArrayRenderer::new(self, config)
+    }
+}
+
 impl ArrayRenderer {
     /// Plans the renderer: FFTs, the late tails of every (source, microphone)
     /// pair, buffers. Nothing is allocated per block afterwards (except the

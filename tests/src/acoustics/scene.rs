@@ -1,7 +1,8 @@
 //! A scene: the room, its sources' signals and how impulse responses are built,
-//! defined once up front and shared by every array rendered in it.
+//! defined once up front and shared by every array rendered in it. Each array
+//! gets its own renderer (`Scene::renderer`, defined in the renderer module,
+//! which depends on this one and not the other way round).
 
-use super::renderer::{ArrayConfig, ArrayRenderer};
 use super::rir::{RirConfig, RirModel};
 use super::room::ShoeboxRoom;
 use super::signals::SourceSignal;
@@ -31,10 +32,5 @@ impl Scene {
             s.validate(self.rir.sample_rate_hz)?;
         }
         RirModel::new(&self.room, &self.rir)
-    }
-
-    /// A renderer for one microphone array in this scene.
-    pub fn renderer(&self, config: ArrayConfig) -> Result<ArrayRenderer, SimError> {
-        ArrayRenderer::new(self, config)
     }
 }
