@@ -145,10 +145,7 @@ impl AgentConfig {
 
     /// Parses and validates `text`; `path` names the file in errors and anchors relative paths.
     pub fn parse(text: &str, path: &Path) -> Result<Self, AgentError> {
-        let raw: file::AgentFile = toml::from_str(text).map_err(|e| {
-            let field = e.span().map(|s| field_at(text, s.start)).unwrap_or_default();
-            config_error(path, &field, e.message().trim())
-        })?;
+        let raw: file::AgentFile = from_toml(text, path)?;
         raw.validate(path)
     }
 }
@@ -158,10 +155,34 @@ impl AgentConfig {
 pub fn load_pipeline(path: &Path) -> Result<PipelineConfig, AgentError> {
     let text = std::fs::read_to_string(path)
         .map_err(|source| AgentError::Io { path: path.to_path_buf(), source })?;
-    toml::from_str(&text).map_err(|e| {
-        let field = e.span().map(|s| field_at(&text, s.start)).unwrap_or_default();
+    from_toml(&text, path)
+}
+
+/// Deserializes TOML `text` (from the file `path`) into `T`. A syntax error names
+/// the key at its position; a type error names the dotted key through
+/// `serde_path_to_error` (`audio.channels`, `microphones[3].position_m`); a missing
+/// key is named itself, with the message `missing`.
+pub(crate) fn from_toml<T: serde::de::DeserializeOwned>(text: &str, path: &Path) -> Result<T, AgentError> {
+    let de = toml::Deserializer::parse(text).map_err(|e| {
+        let field = e.span().map(|s| field_at(text, s.start)).unwrap_or_default();
         config_error(path, &field, e.message().trim())
+    })?;
+    serde_path_to_error::deserialize(de).map_err(|e| {
+        let at = e.path().to_string();
+        let message = e.into_inner().message().trim().replace('\n', " ");
+        let (field, message) = match missing_field(&message) {
+            Some(key) if at == "." || at.is_empty() => (key.to_owned(), "missing".to_owned()),
+            Some(key) => (format!("{at}.{key}"), "missing".to_owned()),
+            None if at == "." => ("(document)".to_owned(), message),
+            None => (at, message),
+        };
+        config_error(path, &field, message)
     })
+}
+
+/// The key named by serde's "missing field `KEY`" message.
+fn missing_field(message: &str) -> Option<&str> {
+    message.strip_prefix("missing field `")?.split('`').next()
 }
 
 pub(crate) fn config_error(path: &Path, field: &str, message: impl Into<String>) -> AgentError {

@@ -71,8 +71,9 @@ pub struct RegionConfig {
 #[derive(Clone, Debug, PartialEq, serde::Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct SrpConfig {
-    /// Speed of sound, m/s.
-    pub speed_of_sound_m_s: f64,
+    /// Speed of sound, m/s (key `speed_of_sound_m_s` accepted as an alias).
+    #[serde(alias = "speed_of_sound_m_s")]
+    pub speed_of_sound_m_per_s: f64,
     /// Lowest frequency used, Hz.
     pub min_frequency_hz: f64,
     /// Highest frequency used, Hz (capped just below Nyquist).
@@ -106,7 +107,7 @@ pub struct SrpConfig {
 impl Default for SrpConfig {
     fn default() -> Self {
         SrpConfig {
-            speed_of_sound_m_s: 343.0,
+            speed_of_sound_m_per_s: 343.0,
             min_frequency_hz: 100.0,
             max_frequency_hz: 8000.0,
             coarse_level: 2,
@@ -183,9 +184,9 @@ impl Srp {
         };
         array.validate(&PathBuf::from(format!("<array {}>", array.name)))?;
         let fs = sample_rate_hz as f64;
-        let c = config.speed_of_sound_m_s;
+        let c = config.speed_of_sound_m_per_s;
         if !(c.is_finite() && (200.0..=2000.0).contains(&c)) {
-            return Err(bad("speed_of_sound_m_s", format!("must be in 200..=2000 m/s, got {c}")));
+            return Err(bad("speed_of_sound_m_per_s", format!("must be in 200..=2000 m/s, got {c}")));
         }
         if config.coarse_level > config.fine_level || config.fine_level > 6 {
             return Err(bad(

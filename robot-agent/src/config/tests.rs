@@ -152,3 +152,52 @@ fn odas_and_live_pose_sources() {
     assert_eq!((o.hop_len, o.sample_rate_hz, o.start), (256, 16_000, None));
     assert_eq!(c.pose.source, PoseSource::JsonlTcp("127.0.0.1:7001".parse().unwrap()));
 }
+
+/// The example with `from` replaced by `to`, as its error message when parsed as `agent.toml`.
+fn shown_error(from: &str, to: &str) -> String {
+    let text = example();
+    assert!(text.contains(from), "example has no {from:?}");
+    match AgentConfig::parse(&text.replacen(from, to, 1), Path::new("agent.toml")) {
+        Err(e @ AgentError::Config { .. }) => e.to_string(),
+        other => panic!("{from:?} → {to:?}: expected a config error, got {other:?}"),
+    }
+}
+
+#[test]
+fn missing_keys_are_named_by_their_dotted_path() {
+    // Not the file's first (comment) line: the key itself.
+    assert_eq!(shown_error("robot_id = \"pioneer-1\"", ""), "agent.toml: robot_id: missing");
+    assert_eq!(
+        shown_error("endpoint = \"http://127.0.0.1:50051\"", ""),
+        "agent.toml: coordinator.endpoint: missing"
+    );
+    assert_eq!(shown_error("source = \"tum\"", ""), "agent.toml: pose.source: missing");
+    fails("[coordinator]", "[coordinatr]", "coordinatr", "unknown field");
+}
+
+#[test]
+fn type_and_unknown_key_errors_name_the_dotted_path() {
+    let e = shown_error("buffer_capacity = 1024", "buffer_capacity = 1024\nendpoint = \"http://x:1\"");
+    assert!(e.starts_with("agent.toml: link.endpoint: unknown field `endpoint`"), "{e}");
+    let e = shown_error("robot_id = \"pioneer-1\"", "robot_id = 7");
+    assert!(e.starts_with("agent.toml: robot_id: invalid type: integer `7`"), "{e}");
+    let e = shown_error("\n[pipeline]\n", "\n[pipeline.srp]\ncoarse_level = \"two\"\n[pipeline]\n");
+    assert!(e.starts_with("agent.toml: pipeline.srp.coarse_level: invalid type"), "{e}");
+    // A syntax error still names the key on its line.
+    let e = shown_error("hop_len = 128\nwindow", "hop_len = 12 8\nwindow");
+    assert!(e.starts_with("agent.toml: pipeline.hop_len: "), "{e}");
+}
+
+#[test]
+fn pipeline_files_name_their_keys() {
+    let dir = std::env::temp_dir().join(format!("soundmap-agent-pipeline-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let file = dir.join("pipeline.toml");
+    std::fs::write(&file, "hop_len = 128\n[srp]\nspeed_of_sound_m_per_s = \"fast\"\n").unwrap();
+    let e = load_pipeline(&file).unwrap_err().to_string();
+    assert!(e.starts_with(&format!("{}: srp.speed_of_sound_m_per_s: invalid type", file.display())), "{e}");
+    // The old spelling of the unit is still accepted.
+    std::fs::write(&file, "[srp]\nspeed_of_sound_m_s = 340.0\n").unwrap();
+    assert_eq!(load_pipeline(&file).unwrap().srp.speed_of_sound_m_per_s, 340.0);
+    std::fs::remove_dir_all(&dir).ok();
+}

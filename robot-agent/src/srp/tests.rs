@@ -145,7 +145,7 @@ fn bad_settings_are_rejected() {
         f(&mut c);
         Srp::new(&array, FS, N, &c).unwrap_err()
     };
-    assert!(matches!(bad(|c| c.speed_of_sound_m_s = 0.0), AgentError::InvalidParameter { .. }));
+    assert!(matches!(bad(|c| c.speed_of_sound_m_per_s = 0.0), AgentError::InvalidParameter { .. }));
     assert!(matches!(bad(|c| c.min_frequency_hz = 7990.0), AgentError::InvalidParameter { .. }));
     assert!(matches!(bad(|c| c.coarse_level = 5), AgentError::InvalidParameter { .. }));
     assert!(matches!(bad(|c| c.max_sources = 0), AgentError::InvalidParameter { .. }));
