@@ -9,12 +9,19 @@
 //! zero-padded when the input does not end on a hop boundary, so that no
 //! sample is lost.
 //!
+//! A file's kind is told by its content, not its name ([`AudioInput::from_path`],
+//! [`sniff()`]): a RIFF/WAVE header makes a WAV file, anything else is raw PCM,
+//! which needs its layout. A WAV file opened as raw PCM, or raw PCM opened as
+//! WAV, is an error rather than noise.
+//!
 //! Bad input is an [`AgentError::Audio`] naming the file (`-` for standard
 //! input) and the problem: truncated data, a channel count or sample rate that
-//! differs from the configured one, an unsupported sample format.
+//! differs from the configured one, an unsupported sample format, a missing
+//! file (`no such file`).
 
 mod live;
 mod raw;
+mod sniff;
 mod wav;
 
 use std::path::{Path, PathBuf};
@@ -25,6 +32,7 @@ use crate::AgentError;
 
 pub use live::LiveSource;
 pub use raw::RawSource;
+pub use sniff::{AudioFileKind, is_wav_header, sniff};
 pub use wav::WavSource;
 
 /// A stream of stamped, fixed-size multichannel audio blocks.
@@ -125,6 +133,43 @@ pub enum AudioInput {
         /// The capture layout.
         layout: RawLayout,
     },
+}
+
+impl AudioInput {
+    /// The input read from `path`, told by the file's content: a WAV file when it
+    /// starts with a RIFF/WAVE header (whatever its name), raw PCM with layout
+    /// `raw` otherwise; `-` is raw PCM on standard input.
+    ///
+    /// Errors name the path: a missing file (`no such file`), a layout given for
+    /// a WAV file (its header gives one), raw PCM without a layout.
+    pub fn from_path(path: &Path, raw: Option<RawLayout>) -> Result<AudioInput, AgentError> {
+        if path == Path::new("-") {
+            let layout = raw.ok_or_else(|| {
+                audio_error(
+                    path,
+                    "raw PCM on standard input needs its layout: sample format, channels and rate",
+                )
+            })?;
+            return Ok(AudioInput::Stdin { layout });
+        }
+        match (sniff(path)?, raw) {
+            (AudioFileKind::Wav, None) => Ok(AudioInput::Wav { path: path.to_path_buf() }),
+            (AudioFileKind::Wav, Some(_)) => Err(audio_error(
+                path,
+                "a WAV file (RIFF/WAVE header): its header gives the sample format, channels and rate, \
+                 so a raw PCM layout is not used for it; remove the layout",
+            )),
+            (AudioFileKind::Raw, Some(layout)) => Ok(AudioInput::Raw { path: path.to_path_buf(), layout }),
+            (AudioFileKind::Raw, None) => Err(audio_error(
+                path,
+                format!(
+                    "not a WAV file (no RIFF/WAVE header){}, so raw PCM, which needs its layout: \
+                     sample format, channels and rate",
+                    if sniff::named_wav(path) { " despite its .wav name" } else { "" }
+                ),
+            )),
+        }
+    }
 }
 
 /// Layout of a raw PCM stream: what a WAV header would say.

@@ -267,3 +267,74 @@ fn live_capture_without_the_feature_says_so() {
         .to_string();
     assert!(msg.contains("hw:1,0") && msg.contains("live-capture"), "{msg}");
 }
+
+#[test]
+fn files_are_recognised_by_their_content_not_their_name() {
+    let dir = temp_dir("sniff");
+    let layout = RawLayout { format: RawFormat::S16le, channels: 2, sample_rate_hz: 16_000 };
+    // A WAV file named .raw is a WAV file.
+    let wav_named_raw = dir.join("take.raw");
+    write_wav(&wav_named_raw, 2, 16_000, 16, false, 10);
+    assert_eq!(audio::sniff(&wav_named_raw).unwrap(), audio::AudioFileKind::Wav);
+    let input = AudioInput::from_path(&wav_named_raw, None).unwrap();
+    assert_eq!(input, AudioInput::Wav { path: wav_named_raw.clone() });
+    let (_, samples) = read_all(&mut *audio::open(&input, &options(4, 2, 16_000)).unwrap()).unwrap();
+    assert!((samples[1] as f64 - value(0, 1)).abs() < 1e-4);
+    // ... and a raw layout for it is a clear error, as is opening it as raw PCM.
+    let msg = AudioInput::from_path(&wav_named_raw, Some(layout)).unwrap_err().to_string();
+    assert!(msg.contains("take.raw") && msg.contains("a WAV file (RIFF/WAVE header)"), "{msg}");
+    let raw = AudioInput::Raw { path: wav_named_raw.clone(), layout };
+    let msg = audio::open(&raw, &options(4, 2, 16_000)).unwrap_err().to_string();
+    assert!(msg.contains("take.raw") && msg.contains("a WAV file (RIFF/WAVE header), not raw PCM"), "{msg}");
+
+    // Raw PCM named .wav is raw PCM: it needs its layout, and is not read as WAV.
+    let raw_named_wav = dir.join("take.wav");
+    std::fs::write(&raw_named_wav, raw_bytes(RawFormat::S16le, 2, 10)).unwrap();
+    assert_eq!(audio::sniff(&raw_named_wav).unwrap(), audio::AudioFileKind::Raw);
+    let e = AudioInput::from_path(&raw_named_wav, None).unwrap_err();
+    assert!(matches!(e, AgentError::Audio { .. }), "{e:?}");
+    let msg = e.to_string();
+    assert!(
+        msg.starts_with(&format!(
+            "{}: not a WAV file (no RIFF/WAVE header) despite its .wav name",
+            raw_named_wav.display()
+        )) && msg.contains("needs its layout"),
+        "{msg}"
+    );
+    let input = AudioInput::from_path(&raw_named_wav, Some(layout)).unwrap();
+    assert_eq!(input, AudioInput::Raw { path: raw_named_wav.clone(), layout });
+    let (_, samples) = read_all(&mut *audio::open(&input, &options(4, 2, 16_000)).unwrap()).unwrap();
+    assert_eq!(samples.len(), 12 * 2);
+    let wav = AudioInput::Wav { path: raw_named_wav.clone() };
+    let msg = audio::open(&wav, &options(4, 2, 16_000)).unwrap_err().to_string();
+    assert!(msg.contains("take.wav") && msg.contains("not a WAV file (no RIFF/WAVE header)"), "{msg}");
+
+    // A file shorter than a header is raw PCM too.
+    let tiny = dir.join("tiny.pcm");
+    std::fs::write(&tiny, [0u8; 4]).unwrap();
+    assert_eq!(audio::sniff(&tiny).unwrap(), audio::AudioFileKind::Raw);
+    // Standard input is raw PCM and needs its layout.
+    assert_eq!(AudioInput::from_path(Path::new("-"), Some(layout)).unwrap(), AudioInput::Stdin { layout });
+    assert!(
+        AudioInput::from_path(Path::new("-"), None).unwrap_err().to_string().contains("needs its layout")
+    );
+}
+
+#[test]
+fn a_missing_file_says_no_such_file_with_its_path() {
+    let dir = temp_dir("missing");
+    let layout = RawLayout { format: RawFormat::S16le, channels: 2, sample_rate_hz: 16_000 };
+    let path = dir.join("nowhere.wav");
+    let expected = format!("{}: no such file", path.display());
+    for result in [
+        AudioInput::from_path(&path, None).map(drop),
+        AudioInput::from_path(&path, Some(layout)).map(drop),
+        audio::sniff(&path).map(drop),
+        audio::open(&AudioInput::Wav { path: path.clone() }, &options(4, 2, 16_000)).map(drop),
+        audio::open(&AudioInput::Raw { path: path.clone(), layout }, &options(4, 2, 16_000)).map(drop),
+    ] {
+        let e = result.unwrap_err();
+        assert!(matches!(e, AgentError::Audio { .. }), "{e:?}");
+        assert_eq!(e.to_string(), expected);
+    }
+}

@@ -1,12 +1,12 @@
 //! Raw interleaved PCM (s16le, s24le packed, s32le), as ODAS reads it, from a
 //! file, standard input or any byte stream.
 
-use std::fs::File;
 use std::io::{ErrorKind, Read};
 use std::path::Path;
 
 use soundmap_proto::Stamp;
 
+use super::sniff::{AudioFileKind, open_file, read_kind};
 use super::{
     AudioSource, BlockOptions, FrameClock, RawLayout, audio_error, check_block_len, map_frame, resolve_shape,
 };
@@ -42,7 +42,14 @@ impl RawSource {
     /// Opens a raw PCM file. Its length must be a whole number of frames.
     pub fn open_file(path: &Path, layout: RawLayout, options: &BlockOptions) -> Result<Self, AgentError> {
         let io = |source| AgentError::Io { path: path.to_path_buf(), source };
-        let file = File::open(path).map_err(io)?;
+        let mut file = open_file(path)?;
+        if read_kind(path, &mut file)? == AudioFileKind::Wav {
+            return Err(audio_error(
+                path,
+                "a WAV file (RIFF/WAVE header), not raw PCM: read it as WAV (its header gives the sample \
+                 format, channels and rate)",
+            ));
+        }
         let len = file.metadata().map_err(io)?.len();
         let frame_bytes = (layout.channels * layout.format.bytes()) as u64;
         if frame_bytes > 0 && len % frame_bytes != 0 {

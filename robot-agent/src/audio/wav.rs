@@ -6,6 +6,7 @@ use std::path::{Path, PathBuf};
 
 use soundmap_proto::Stamp;
 
+use super::sniff::{AudioFileKind, named_wav, open_file, read_kind};
 use super::{AudioSource, BlockOptions, FrameClock, audio_error, check_block_len, map_frame, resolve_shape};
 use crate::AgentError;
 
@@ -50,8 +51,17 @@ impl std::fmt::Debug for WavSource {
 impl WavSource {
     /// Opens `path` and checks its format, sample rate and channels against `options`.
     pub fn open(path: &Path, options: &BlockOptions) -> Result<Self, AgentError> {
-        let mut file =
-            File::open(path).map_err(|source| AgentError::Io { path: path.to_path_buf(), source })?;
+        let mut file = open_file(path)?;
+        if read_kind(path, &mut file)? != AudioFileKind::Wav {
+            return Err(audio_error(
+                path,
+                format!(
+                    "not a WAV file (no RIFF/WAVE header){}: if it is raw PCM, read it as raw with its \
+                     layout (sample format, channels and rate)",
+                    if named_wav(path) { " despite its .wav name" } else { "" }
+                ),
+            ));
+        }
         check_not_truncated(path, &mut file)?;
         let reader = hound::WavReader::new(BufReader::new(file)).map_err(|e| match e {
             hound::Error::IoError(source) => AgentError::Io { path: path.to_path_buf(), source },
@@ -178,7 +188,7 @@ impl AudioSource for WavSource {
 
 /// Walks the RIFF chunks to the `data` chunk and checks the file holds all the
 /// bytes its header declares, so that a truncated file fails before any audio is read.
-/// Files that are not RIFF/WAVE are left to hound to reject.
+/// Files that are not RIFF/WAVE were rejected before.
 fn check_not_truncated(path: &Path, file: &mut File) -> Result<(), AgentError> {
     let io = |source| AgentError::Io { path: path.to_path_buf(), source };
     let file_len = file.metadata().map_err(io)?.len();
