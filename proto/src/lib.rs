@@ -6,6 +6,8 @@
 //! - Domain types ([`Hello`], [`Observation`], [`RepositionCommand`], …) carry
 //!   nalgebra types and are valid by construction: converting from the wire
 //!   checks every field and names the first bad one in a [`ValidationError`].
+//! - [`monitoring`]: domain types of the `Monitoring` service (liveness,
+//!   planner status, active positioning) and their wire conversions.
 //! - [`Stamp`]: the fleet timebase (Unix time in nanoseconds).
 //!
 //! Frames, units and time conventions are those of the `.proto` files: `map`,
@@ -14,6 +16,7 @@
 pub mod error;
 pub mod geometry;
 pub mod messages;
+pub mod monitoring;
 pub mod robot_id;
 pub mod stamp;
 

@@ -8,9 +8,9 @@ use nalgebra::{Point3, UnitQuaternion, Vector3};
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 use rand_distr::{Distribution, StandardNormal};
+use soundmap_proto::monitoring::covariance_from_wire;
 use soundmap_proto::wire;
 use soundmap_server::CoordinatorConfig;
-use soundmap_server::service::convert::covariance_from_wire;
 use soundmap_server::uncertainty::{Sensor, assess};
 
 const SOURCE: Point3<f64> = Point3::new(2.0, 3.0, 1.12);

@@ -10,9 +10,9 @@ use nalgebra::{Matrix3, Point3, UnitQuaternion, Vector3};
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 use rand_distr::{Distribution, StandardNormal};
+use soundmap_proto::monitoring::covariance_from_wire;
 use soundmap_proto::wire;
 use soundmap_server::CoordinatorConfig;
-use soundmap_server::service::convert::covariance_from_wire;
 use soundmap_server::stats::chi2_quantile;
 
 const SOURCE: Point3<f64> = Point3::new(2.0, 3.0, 1.12);

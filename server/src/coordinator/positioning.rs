@@ -3,6 +3,7 @@
 //! reposition commands (ids, deadlines, operator text) and its holds and
 //! infeasibilities into a status.
 
+pub use soundmap_proto::monitoring::{PlanKind, PlannerStatus, PositioningSettings, PositioningUpdate};
 use soundmap_proto::{Problem, RepositionCommand, RepositionReason, Stamp, ValidationError};
 
 use crate::config::{ActivePositioningConfig, CoordinatorConfig, planner_error};
@@ -13,63 +14,6 @@ use crate::planner::{
 
 /// Longest operator text of a command (the contract's text limit).
 const MAX_DETAIL_CHARS: usize = 256;
-
-/// The operator-facing settings.
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub struct PositioningSettings {
-    /// Whether reposition commands are sent.
-    pub enabled: bool,
-    /// Acceptable θ band (degrees).
-    pub theta_min_deg: f64,
-    /// See `theta_min_deg`.
-    pub theta_max_deg: f64,
-}
-
-/// A change of the settings; `None` keeps the current value.
-#[derive(Clone, Copy, Debug, Default, PartialEq)]
-pub struct PositioningUpdate {
-    /// Switch on or off.
-    pub enabled: Option<bool>,
-    /// New lower edge (degrees).
-    pub theta_min_deg: Option<f64>,
-    /// New upper edge (degrees).
-    pub theta_max_deg: Option<f64>,
-}
-
-/// Kind of the planner's latest decision.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum PlanKind {
-    /// Goals were sent.
-    Planned,
-    /// The robots were left as they are.
-    Hold,
-    /// No placement meets the constraints.
-    Infeasible,
-}
-
-/// The planner's latest decision, for monitoring (waits for the planning
-/// period are not decisions and leave it unchanged).
-#[derive(Clone, Debug, PartialEq)]
-pub struct PlannerStatus {
-    /// Coordinator clock of the decision.
-    pub decided: Stamp,
-    /// What it was.
-    pub kind: PlanKind,
-    /// Short stable name of the reason (`geometry_good`, `no_source`, …), for logs.
-    pub key: &'static str,
-    /// The reason in words.
-    pub detail: String,
-    /// When goals were last sent.
-    pub last_planned: Option<Stamp>,
-    /// Commands sent since start.
-    pub commands_issued: u64,
-    /// Of the last plan: best pairwise θ (degrees) and GDOP once its goals are reached.
-    pub predicted_theta_deg: Option<f64>,
-    /// See `predicted_theta_deg`.
-    pub predicted_gdop: Option<f64>,
-    /// The last plan came from the sampling fallback.
-    pub used_fallback: bool,
-}
 
 /// Active positioning state: settings, planner, command ids and status.
 #[derive(Debug)]

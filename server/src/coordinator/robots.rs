@@ -4,21 +4,11 @@
 use std::collections::VecDeque;
 
 use nalgebra::Isometry3;
+pub use soundmap_proto::monitoring::Liveness;
 use soundmap_proto::{Hello, Stamp};
 
 use super::commands::{CommandLog, ConnId};
 use crate::ray::Ray;
-
-/// Liveness of a robot, as monitoring reports it.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum Liveness {
-    /// Connected and heard from within the stale timeout.
-    Live,
-    /// Connected but silent too long; out of triangulation.
-    Stale,
-    /// Stream closed; state kept for a reconnection.
-    Disconnected,
-}
 
 /// One observation kept for alignment: the robot's rays at a stamp.
 #[derive(Clone, Debug)]

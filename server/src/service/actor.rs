@@ -12,12 +12,12 @@ use std::time::{Duration, Instant};
 use soundmap_proto::{CommandAck, CommandProgress, Hello, Observation, RobotId, Stamp, wire};
 use tokio::sync::{broadcast, mpsc, oneshot};
 
-use super::convert::{estimate_to_wire, planner_status_to_wire, positioning_to_wire, robot_to_wire};
+use super::convert::{estimate_to_wire, robot_to_wire};
 use super::metrics::Metrics;
 use super::status::to_stream_error;
 use crate::clock::Clock;
 use crate::coordinator::{
-    ConnId, Coordinator, Outbound, PlanKind, PositioningSettings, PositioningUpdate, Welcome,
+    ConnId, Coordinator, Outbound, PlanKind, PlannerStatus, PositioningSettings, PositioningUpdate, Welcome,
 };
 use crate::error::ServerError;
 
@@ -382,8 +382,8 @@ impl Actor {
                 .map(|(id, e)| robot_to_wire(e, self.coordinator.liveness_of(id, now).expect("known robot")))
                 .collect(),
             sources: self.coordinator.last_estimate().map(estimate_to_wire).into_iter().collect(),
-            active_positioning: Some(positioning_to_wire(&self.coordinator.positioning())),
-            planner: self.coordinator.planner_status().map(planner_status_to_wire),
+            active_positioning: Some(self.coordinator.positioning().to_wire()),
+            planner: self.coordinator.planner_status().map(PlannerStatus::to_wire),
         }
     }
 }

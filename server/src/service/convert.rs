@@ -1,12 +1,14 @@
-//! Domain → wire conversions for monitoring, and the JSON-lines form of an estimate.
+//! Domain → wire conversions of the coordinator's own types for monitoring
+//! (source estimates, robot state), and the JSON-lines form of an estimate.
+//! Those of the types the contract shares (liveness, planner status, active
+//! positioning, covariance read-back) are in [`soundmap_proto::monitoring`].
 
-use nalgebra::{Matrix3, Point3};
+use nalgebra::Point3;
 use soundmap_proto::geometry::covariance3_to_wire;
+use soundmap_proto::monitoring::finite_or;
 use soundmap_proto::{pose_to_wire, vec3_to_wire, wire};
 
-use crate::coordinator::{
-    BestSource, Estimate, Liveness, PlanKind, PlannerStatus, PositioningSettings, RobotEntry,
-};
+use crate::coordinator::{BestSource, Estimate, Liveness, RobotEntry};
 use crate::tracking::{TrackEstimate, TrackState};
 use crate::triangulation::{Gate, Method, Triangulation};
 
@@ -20,11 +22,6 @@ fn method(m: Method) -> wire::EstimateMethod {
 
 fn point(p: &Point3<f64>) -> wire::Vec3 {
     vec3_to_wire(&p.coords)
-}
-
-/// Finite or zero: the wire has no infinities for GDOP/θ; `trusted` and the gate tell the rest.
-fn finite_or(v: f64, fallback: f64) -> f64 {
-    if v.is_finite() { v } else { fallback }
 }
 
 /// The wire form of a triangulation.
@@ -114,42 +111,11 @@ pub fn estimate_to_wire(e: &Estimate) -> wire::SourceEstimate {
     }
 }
 
-/// The wire form of the active positioning settings.
-pub fn positioning_to_wire(s: &PositioningSettings) -> wire::ActivePositioning {
-    wire::ActivePositioning {
-        enabled: s.enabled,
-        theta_min_deg: s.theta_min_deg,
-        theta_max_deg: s.theta_max_deg,
-    }
-}
-
-/// The wire form of the planner's latest decision.
-pub fn planner_status_to_wire(s: &PlannerStatus) -> wire::PlannerStatus {
-    wire::PlannerStatus {
-        decided_ns: s.decided.as_ns(),
-        outcome: match s.kind {
-            PlanKind::Planned => wire::PlannerOutcome::Planned,
-            PlanKind::Hold => wire::PlannerOutcome::Hold,
-            PlanKind::Infeasible => wire::PlannerOutcome::Infeasible,
-        } as i32,
-        detail: s.detail.clone(),
-        last_planned_ns: s.last_planned.map_or(0, |t| t.as_ns()),
-        commands_issued: s.commands_issued,
-        predicted_theta_deg: s.predicted_theta_deg.map_or(0.0, |v| finite_or(v, 0.0)),
-        predicted_gdop: s.predicted_gdop.map_or(0.0, |v| finite_or(v, 0.0)),
-        used_fallback: s.used_fallback,
-    }
-}
-
 /// The wire form of a robot's state.
 pub fn robot_to_wire(e: &RobotEntry, liveness: Liveness) -> wire::RobotState {
     wire::RobotState {
         robot_id: e.hello.robot_id.to_string(),
-        liveness: match liveness {
-            Liveness::Live => wire::Liveness::Live,
-            Liveness::Stale => wire::Liveness::Stale,
-            Liveness::Disconnected => wire::Liveness::Disconnected,
-        } as i32,
+        liveness: liveness.to_wire() as i32,
         last_seen_ns: e.last_seen.as_ns(),
         last_observation_ns: e.last_stamp.map_or(0, |s| s.as_ns()),
         map_from_base: e.last_pose.as_ref().map(pose_to_wire),
@@ -192,9 +158,4 @@ pub fn estimate_to_json_line(e: &wire::SourceEstimate) -> Option<String> {
         "method": method,
     });
     Some(v.to_string())
-}
-
-/// Reads a 3×3 covariance back from the wire (for clients and tests).
-pub fn covariance_from_wire(c: &wire::Covariance3) -> Option<Matrix3<f64>> {
-    (c.values_m2.len() == 9).then(|| Matrix3::from_fn(|r, k| c.values_m2[r * 3 + k]))
 }

@@ -11,7 +11,6 @@ use tokio::sync::{broadcast, mpsc, oneshot};
 use tonic::{Request, Response, Status};
 
 use super::actor;
-use super::convert::positioning_to_wire;
 use super::status::to_status;
 use crate::coordinator::PositioningUpdate;
 use crate::error::ServerError;
@@ -87,12 +86,7 @@ impl Monitoring for MonitoringService {
         &self,
         request: Request<wire::SetActivePositioningRequest>,
     ) -> Result<Response<wire::ActivePositioning>, Status> {
-        let r = request.into_inner();
-        let update = PositioningUpdate {
-            enabled: r.enabled,
-            theta_min_deg: r.theta_min_deg,
-            theta_max_deg: r.theta_max_deg,
-        };
+        let update = PositioningUpdate::from_wire(request.get_ref());
         let (reply, answer) = oneshot::channel();
         self.requests
             .send(actor::Request::SetActivePositioning { update, reply })
@@ -100,6 +94,6 @@ impl Monitoring for MonitoringService {
             .map_err(|_| to_status(&ServerError::ShuttingDown))?;
         let settings =
             answer.await.map_err(|_| to_status(&ServerError::ShuttingDown))?.map_err(|e| to_status(&e))?;
-        Ok(Response::new(positioning_to_wire(&settings)))
+        Ok(Response::new(settings.to_wire()))
     }
 }

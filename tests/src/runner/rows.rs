@@ -72,7 +72,7 @@ pub fn row_of(
         method: method_name(e.method),
         robots: e.robots.clone(),
         truth,
-        covariance: e.covariance.as_ref().and_then(soundmap_server::service::convert::covariance_from_wire),
+        covariance: e.covariance.as_ref().and_then(soundmap_proto::monitoring::covariance_from_wire),
     }
 }
 
