@@ -15,6 +15,13 @@ impl ValidationError {
     pub fn new(field: impl Into<String>, problem: Problem) -> Self {
         ValidationError { field: field.into(), problem }
     }
+
+    /// The same error with its field path inside `parent` (`parent.field`):
+    /// a section validated on its own is placed in its document this way, once.
+    pub fn within(mut self, parent: &str) -> Self {
+        self.field = if self.field.is_empty() { parent.into() } else { format!("{parent}.{}", self.field) };
+        self
+    }
 }
 
 /// What is wrong with a field.

@@ -8,8 +8,10 @@ use std::path::{Path, PathBuf};
 use serde::Deserialize;
 
 use crate::error::ServerError;
-use crate::planner::{ConfigError as PlannerConfigError, PlannerConfig, ThetaBand};
-use crate::tracking::{TrackerConfig, TrackerConfigError};
+use soundmap_proto::{Problem, ValidationError};
+
+use crate::planner::{PlannerConfig, ThetaBand};
+use crate::tracking::TrackerConfig;
 use crate::triangulation::{RobustLoss, TriangulationConfig};
 
 /// The coordinator's configuration.
@@ -267,7 +269,7 @@ impl CoordinatorConfig {
         }
         for (robot, token) in &self.auth.tokens {
             if let Err(e) = soundmap_proto::RobotId::parse(robot, &format!("auth.tokens.{robot}")) {
-                return err(&e.field, e.problem.to_string());
+                return Err(invalid_key(path, e));
             }
             if token.len() < 16 {
                 return err(&format!("auth.tokens.{robot}"), "tokens must be at least 16 characters".into());
@@ -276,7 +278,7 @@ impl CoordinatorConfig {
         if self.auth.required && self.auth.tokens.is_empty() {
             return err("auth.required", "true, but auth.tokens is empty: no robot could connect".into());
         }
-        self.tracking.validate().map_err(|e| tracker_error(path, &e))?;
+        self.tracking.validate().map_err(|e| invalid_key(path, e.within("tracking")))?;
         self.validate_positioning(path)?;
         Ok(())
     }
@@ -296,11 +298,8 @@ impl CoordinatorConfig {
                 );
             }
         }
-        if let Err(e) =
-            ThetaBand::new(ap.theta_min_deg, ap.theta_max_deg, self.planner.theta_hysteresis_deg, false)
-        {
-            return err(&format!("active_positioning.{}", e.field), e.problem.to_string());
-        }
+        ThetaBand::new(ap.theta_min_deg, ap.theta_max_deg, self.planner.theta_hysteresis_deg, false)
+            .map_err(|e| invalid_key(path, e.within("active_positioning")))?;
         if !(ap.command_deadline_s.is_finite() && ap.command_deadline_s > 0.0) {
             return err(
                 "active_positioning.command_deadline_s",
@@ -312,7 +311,7 @@ impl CoordinatorConfig {
                 return err(&format!("active_positioning.{field}"), format!("{v} must be finite and ≥ 0"));
             }
         }
-        self.planner_config().validate().map_err(|e| planner_error(path, &e))
+        self.planner_config().validate().map_err(|e| invalid_key(path, e.within("planner")))
     }
 
     /// The planner's settings with the θ band of `[active_positioning]`.
@@ -325,22 +324,17 @@ impl CoordinatorConfig {
     }
 }
 
-/// A `[tracking]` setting out of range, as a config error naming `tracking.<field>`.
-pub fn tracker_error(path: &Path, e: &TrackerConfigError) -> ServerError {
-    config_error(path, &format!("tracking.{}", e.field), e.requirement)
+/// A key of the file at `path` that failed validation; `error` names the key
+/// from the document's root (a section's own error is placed with
+/// [`ValidationError::within`] first).
+pub fn invalid_key(path: &Path, error: ValidationError) -> ServerError {
+    ServerError::Config { path: path.into(), error }
 }
 
-/// A `[planner]` setting out of range, as a config error naming `planner.<field>`.
-pub fn planner_error(path: &Path, e: &PlannerConfigError) -> ServerError {
-    config_error(path, &format!("planner.{}", e.field), &e.problem)
-}
-
+/// A key with a problem described in words (parse errors, relations between keys).
 fn config_error(path: &Path, field: &str, message: &str) -> ServerError {
-    ServerError::Config {
-        path: path.into(),
-        field: if field.is_empty() || field == "." { "(document)".into() } else { field.into() },
-        message: message.trim().replace('\n', " "),
-    }
+    let field = if field.is_empty() || field == "." { "(document)" } else { field };
+    invalid_key(path, ValidationError::new(field, Problem::Invalid(message.trim().replace('\n', " "))))
 }
 
 #[cfg(test)]

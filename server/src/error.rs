@@ -39,15 +39,14 @@ pub enum ServerError {
         /// Id of the credentials.
         authenticated: RobotId,
     },
-    /// A configuration file is unreadable or invalid.
-    #[error("{path}: {field}: {message}")]
+    /// A configuration file is invalid: the key's dotted path from the
+    /// document's root and what is wrong with it.
+    #[error("{path}: {error}")]
     Config {
-        /// The file (or `<defaults>`).
+        /// The file (or `<config>` for a configuration built in code).
         path: PathBuf,
-        /// Dotted field path.
-        field: String,
-        /// What is wrong.
-        message: String,
+        /// The key and its problem.
+        error: ValidationError,
     },
     /// A file could not be read or written.
     #[error("{path}: {source}")]

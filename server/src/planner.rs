@@ -42,7 +42,7 @@ use nalgebra::Point2;
 use soundmap_proto::Stamp;
 
 pub use band::ThetaBand;
-pub use config::{ConfigError, PlannerConfig, SamplingConfig};
+pub use config::{PlannerConfig, SamplingConfig};
 pub use free_space::{Blocked, FreeSpace, FreeSpaceConfig, HalfPlane};
 pub use input::{PlannerInput, RobotState, SourceEstimate};
 pub use outcome::{Goal, HoldReason, InfeasibleReason, PlanOutcome};
@@ -73,7 +73,7 @@ struct RobotCycle {
 
 impl Planner {
     /// A planner with a validated configuration.
-    pub fn new(config: PlannerConfig) -> Result<Self, ConfigError> {
+    pub fn new(config: PlannerConfig) -> Result<Self, soundmap_proto::ValidationError> {
         config.validate()?;
         let free = FreeSpace::new(&config.free_space, config.wall_clearance_m());
         Ok(Planner { config, free, memory: Memory::default() })

@@ -33,7 +33,7 @@ mod step;
 use nalgebra::{Matrix3, Matrix6, Point3, Vector3};
 use soundmap_proto::Stamp;
 
-pub use config::{TrackerConfig, TrackerConfigError};
+pub use config::TrackerConfig;
 pub use filter::{CvState, ProcessNoise, Unusable};
 pub use lifecycle::{LossReason, TrackState};
 pub use outcome::UpdateOutcome;

@@ -4,9 +4,9 @@
 //! infeasibilities into a status.
 
 pub use soundmap_proto::monitoring::{PlanKind, PlannerStatus, PositioningSettings, PositioningUpdate};
-use soundmap_proto::{Problem, RepositionCommand, RepositionReason, Stamp, ValidationError};
+use soundmap_proto::{RepositionCommand, RepositionReason, Stamp, ValidationError};
 
-use crate::config::{ActivePositioningConfig, CoordinatorConfig, planner_error};
+use crate::config::{ActivePositioningConfig, CoordinatorConfig, invalid_key};
 use crate::error::ServerError;
 use crate::planner::{
     Goal, HoldReason, InfeasibleReason, PlanOutcome, Planner, PlannerConfig, PlannerInput, ThetaBand,
@@ -33,8 +33,8 @@ impl Positioning {
     pub fn new(config: &CoordinatorConfig) -> Result<Self, ServerError> {
         let ap = &config.active_positioning;
         let planner_config = config.planner_config();
-        let planner =
-            Planner::new(planner_config.clone()).map_err(|e| planner_error("<config>".as_ref(), &e))?;
+        let planner = Planner::new(planner_config.clone())
+            .map_err(|e| invalid_key("<config>".as_ref(), e.within("planner")))?;
         Ok(Positioning {
             settings: PositioningSettings {
                 enabled: ap.enabled,
@@ -74,9 +74,11 @@ impl Positioning {
         ThetaBand::new(min, max, self.planner_config.theta_hysteresis_deg, blame_max)?;
         if (min, max) != (self.settings.theta_min_deg, self.settings.theta_max_deg) {
             let cfg = PlannerConfig { theta_min_deg: min, theta_max_deg: max, ..self.planner_config.clone() };
+            // The band passed ThetaBand, so the planner has nothing else to object to;
+            // should it, its error is about the band's edges.
             self.planner = Planner::new(cfg.clone()).map_err(|e| {
                 let field = if blame_max { "theta_max_deg" } else { "theta_min_deg" };
-                ValidationError::new(field, Problem::Invalid(e.to_string()))
+                ValidationError::new(field, e.problem)
             })?;
             self.planner_config = cfg;
             self.settings.theta_min_deg = min;

@@ -1,18 +1,9 @@
 //! Planner settings (TOML section `[planner]`), their defaults and validation.
 
 use serde::Deserialize;
+use soundmap_proto::{Problem, ValidationError};
 
 use super::free_space::{FreeSpaceConfig, polygon_problem};
-
-/// A planner setting that cannot be used, naming the field.
-#[derive(Clone, Debug, PartialEq, thiserror::Error)]
-#[error("planner config: `{field}` {problem}")]
-pub struct ConfigError {
-    /// Dotted field name, e.g. `free_space.obstacles[2]`.
-    pub field: String,
-    /// What is wrong with it.
-    pub problem: String,
-}
 
 /// Settings of the sampling fallback (theory §3.5).
 #[derive(Clone, Debug, PartialEq, Deserialize)]
@@ -182,9 +173,10 @@ impl PlannerConfig {
         self.robot_radius_m + self.clearance_m
     }
 
-    /// Checks every field; the error names the first bad one.
-    pub fn validate(&self) -> Result<(), ConfigError> {
-        let err = |field: &str, problem: String| Err(ConfigError { field: field.into(), problem });
+    /// Checks every field; the error names the first bad one (its path within
+    /// `[planner]`, e.g. `free_space.obstacles[2]`).
+    pub fn validate(&self) -> Result<(), ValidationError> {
+        let err = |field: &str, problem: String| Err(ValidationError::new(field, Problem::Invalid(problem)));
         let positive = [
             ("max_gdop", self.max_gdop),
             ("min_range_m", self.min_range_m),

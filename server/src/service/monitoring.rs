@@ -11,9 +11,8 @@ use tokio::sync::{broadcast, mpsc, oneshot};
 use tonic::{Request, Response, Status};
 
 use super::actor;
-use super::status::to_status;
+use super::status::{self, to_status};
 use crate::coordinator::PositioningUpdate;
-use crate::error::ServerError;
 
 /// The monitoring service.
 #[derive(Debug, Clone)]
@@ -45,11 +44,8 @@ impl Monitoring for MonitoringService {
         _: Request<wire::GetStateRequest>,
     ) -> Result<Response<wire::CoordinatorState>, Status> {
         let (reply, answer) = oneshot::channel();
-        self.requests
-            .send(actor::Request::GetState { reply })
-            .await
-            .map_err(|_| to_status(&ServerError::ShuttingDown))?;
-        Ok(Response::new(answer.await.map_err(|_| to_status(&ServerError::ShuttingDown))?))
+        self.requests.send(actor::Request::GetState { reply }).await.map_err(|_| status::shutting_down())?;
+        Ok(Response::new(answer.await.map_err(|_| status::shutting_down())?))
     }
 
     async fn watch_estimates(
@@ -91,9 +87,8 @@ impl Monitoring for MonitoringService {
         self.requests
             .send(actor::Request::SetActivePositioning { update, reply })
             .await
-            .map_err(|_| to_status(&ServerError::ShuttingDown))?;
-        let settings =
-            answer.await.map_err(|_| to_status(&ServerError::ShuttingDown))?.map_err(|e| to_status(&e))?;
+            .map_err(|_| status::shutting_down())?;
+        let settings = answer.await.map_err(|_| status::shutting_down())?.map_err(|e| to_status(&e))?;
         Ok(Response::new(settings.to_wire()))
     }
 }

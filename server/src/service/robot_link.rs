@@ -13,7 +13,7 @@ use tonic::{Request, Response, Status, Streaming};
 
 use super::actor;
 use super::auth::Authenticator;
-use super::status::to_status;
+use super::status::{self, to_status};
 use crate::clock::Clock;
 use crate::config::CoordinatorConfig;
 use crate::coordinator::ConnId;
@@ -66,22 +66,18 @@ impl RobotLink for RobotLinkService {
     ) -> Result<Response<Self::ConnectStream>, Status> {
         let identity = self.auth.identify(request.metadata()).map_err(|e| to_status(&e))?;
         let mut inbound = request.into_inner();
-        let first = inbound
-            .message()
-            .await?
-            .ok_or_else(|| Status::invalid_argument("msg: stream closed before its hello"))?;
+        let first = inbound.message().await?.ok_or_else(status::closed_before_hello)?;
         let hello = match &first.msg {
             Some(Msg::Hello(h)) => Hello::from_wire(h, &self.limits()).map_err(|e| to_status(&e.into()))?,
-            _ => return Err(Status::invalid_argument("msg: the first message of a stream must be a hello")),
+            _ => return Err(status::first_message_not_hello()),
         };
         let (outbound, rx) = mpsc::channel(OUTBOUND_CAPACITY);
         let (reply, answer) = oneshot::channel();
         self.requests
             .send(actor::Request::Connect { hello, identity, outbound, reply })
             .await
-            .map_err(|_| to_status(&ServerError::ShuttingDown))?;
-        let welcome =
-            answer.await.map_err(|_| to_status(&ServerError::ShuttingDown))?.map_err(|e| to_status(&e))?;
+            .map_err(|_| status::shutting_down())?;
+        let welcome = answer.await.map_err(|_| status::shutting_down())?.map_err(|e| to_status(&e))?;
         tokio::spawn(read_stream(inbound, welcome.conn, self.clone()));
         // Queued messages go out first; on shutdown the stream ends with
         // UNAVAILABLE so that the robot reconnects later.
@@ -96,13 +92,10 @@ impl RobotLink for RobotLinkService {
                 match next {
                     Some(Some(m)) => Some((Ok(m), (rx, Some(stop)))),
                     // The coordinator dropped this stream: a newer connection took the robot over.
-                    Some(None) if !*stop.borrow() => Some((
-                        Err(Status::aborted(
-                            "this stream was replaced by a newer connection of the same robot",
-                        )),
-                        (rx, None),
-                    )),
-                    _ => Some((Err(to_status(&ServerError::ShuttingDown)), (rx, None))),
+                    Some(None) if !*stop.borrow() => {
+                        Some((Err(status::replaced_by_newer_connection()), (rx, None)))
+                    }
+                    _ => Some((Err(status::shutting_down()), (rx, None))),
                 }
             });
         Ok(Response::new(Box::pin(stream)))

@@ -1,4 +1,8 @@
-//! The one place where domain errors become gRPC statuses and in-band stream errors.
+//! The one place where gRPC statuses and in-band stream errors are built:
+//! every `tonic::Status` of the server comes from a function of this module.
+//! Domain errors ([`ServerError`]) map to one code each ([`code`]); a few
+//! transport-level endings (a stream without a hello, a stream taken over)
+//! have their own named function.
 
 use soundmap_proto::wire;
 use tonic::{Code, Status};
@@ -22,6 +26,26 @@ pub fn code(e: &ServerError) -> Code {
 /// A status ending a stream or call.
 pub fn to_status(e: &ServerError) -> Status {
     Status::new(code(e), e.to_string())
+}
+
+/// The coordinator task has stopped: UNAVAILABLE, so that clients retry later.
+pub fn shutting_down() -> Status {
+    to_status(&ServerError::ShuttingDown)
+}
+
+/// A robot stream closed before its first message (INVALID_ARGUMENT, field `msg`).
+pub fn closed_before_hello() -> Status {
+    Status::invalid_argument("msg: stream closed before its hello")
+}
+
+/// A robot stream whose first message is not a hello (INVALID_ARGUMENT, field `msg`).
+pub fn first_message_not_hello() -> Status {
+    Status::invalid_argument("msg: the first message of a stream must be a hello")
+}
+
+/// The end of a robot stream that a newer connection of the same robot took over (ABORTED).
+pub fn replaced_by_newer_connection() -> Status {
+    Status::aborted("this stream was replaced by a newer connection of the same robot")
 }
 
 /// The field an error is about, when it names one.

@@ -1,6 +1,7 @@
 //! Settings of the source tracker, with documented defaults and validation.
 
 use serde::Deserialize;
+use soundmap_proto::{Problem, ValidationError};
 
 use super::filter::{DoaNoiseModel, ProcessNoise};
 use super::lifecycle::{LifecycleRules, MAX_CONFIRM_UPDATES};
@@ -121,20 +122,13 @@ impl Default for TrackerConfig {
     }
 }
 
-/// A tracker setting out of its range.
-#[derive(Clone, Debug, PartialEq, Eq, thiserror::Error)]
-#[error("tracker config: `{field}` {requirement}")]
-pub struct TrackerConfigError {
-    /// The offending field.
-    pub field: &'static str,
-    /// What it must satisfy.
-    pub requirement: &'static str,
-}
-
 impl TrackerConfig {
-    /// Checks every field; the first violation is returned.
-    pub fn validate(&self) -> Result<(), TrackerConfigError> {
-        let fail = |field, requirement| Err(TrackerConfigError { field, requirement });
+    /// Checks every field; the first violation is returned, naming the field
+    /// within `[tracking]`.
+    pub fn validate(&self) -> Result<(), ValidationError> {
+        let fail = |field: &str, requirement: &str| {
+            Err(ValidationError::new(field, Problem::Invalid(requirement.into())))
+        };
         let non_negative = [
             ("accel_psd_horizontal_m2_per_s3", self.accel_psd_horizontal_m2_per_s3),
             ("accel_psd_vertical_m2_per_s3", self.accel_psd_vertical_m2_per_s3),
