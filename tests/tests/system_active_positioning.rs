@@ -60,7 +60,7 @@ fn active_moving_brings_theta_into_band_and_keeps_it() {
 }
 
 /// The same over seeds 1–14 (about 2–3 minutes):
-/// `cargo test -p soundmap-sim --test active_positioning -- --ignored --nocapture`.
+/// `cargo test -p soundmap-sim --test system_active_positioning -- --ignored --nocapture`.
 /// Every seed reaches the band within 10 s with RSE p95 under 0.3 m after; the
 /// in-band ratio after convergence is ≥ 95 % on average but not on every seed.
 #[test]
