@@ -29,7 +29,7 @@ pub const MIN_MICROPHONE_SPACING_M: f64 = 1e-3;
 pub const PLANAR_TOLERANCE_M: f64 = 1e-4;
 
 /// A microphone's directivity: full gain within `full_gain_angle_rad` of its
-/// [`Microphone::direction`], no gain beyond `zero_gain_angle_rad`, a raised
+/// [`Microphone::axis_in_array`], no gain beyond `zero_gain_angle_rad`, a raised
 /// cosine in between (ODAS's `angle = (full, zero)` in degrees).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Directivity {
@@ -50,24 +50,24 @@ impl Default for Directivity {
 #[derive(Clone, Debug, PartialEq)]
 pub struct Microphone {
     /// Position in the `array` frame, metres.
-    pub position: Point3<f64>,
+    pub position_in_array: Point3<f64>,
     /// Axis of a directional microphone (unit vector, `array` frame);
     /// `None` for an omnidirectional one.
-    pub direction: Option<Unit<Vector3<f64>>>,
-    /// Gain pattern around `direction` (ignored when `direction` is `None`).
+    pub axis_in_array: Option<Unit<Vector3<f64>>>,
+    /// Gain pattern around `axis_in_array` (ignored when it is `None`).
     pub directivity: Directivity,
 }
 
 impl Microphone {
-    /// An omnidirectional microphone at `position` (metres, array frame).
-    pub fn omni(position: Point3<f64>) -> Self {
-        Microphone { position, direction: None, directivity: Directivity::default() }
+    /// An omnidirectional microphone at `position_in_array` (metres, array frame).
+    pub fn omni(position_in_array: Point3<f64>) -> Self {
+        Microphone { position_in_array, axis_in_array: None, directivity: Directivity::default() }
     }
 
     /// Gain in [0, 1] of this microphone for a source in direction `doa`
     /// (unit vector, array frame); 1 for an omnidirectional microphone.
     pub fn gain(&self, doa: &Unit<Vector3<f64>>) -> f64 {
-        let Some(axis) = self.direction else { return 1.0 };
+        let Some(axis) = self.axis_in_array else { return 1.0 };
         let angle = axis.dot(doa).clamp(-1.0, 1.0).acos();
         let Directivity { full_gain_angle_rad: a, zero_gain_angle_rad: b } = self.directivity;
         if angle <= a {
@@ -201,7 +201,7 @@ impl ArrayGeometry {
 
     /// Microphone positions, metres, array frame.
     pub fn positions(&self) -> impl ExactSizeIterator<Item = Point3<f64>> + '_ {
-        self.microphones.iter().map(|m| m.position)
+        self.microphones.iter().map(|m| m.position_in_array)
     }
 
     /// Centroid of the microphones, array frame.
@@ -257,7 +257,7 @@ impl ArrayGeometry {
     pub fn centred(mut self) -> Self {
         let c = self.centroid().coords;
         for m in &mut self.microphones {
-            m.position -= c;
+            m.position_in_array -= c;
         }
         let shift = self.base_from_array.rotation * c;
         self.base_from_array.translation.vector += shift;
@@ -281,19 +281,19 @@ impl ArrayGeometry {
             ));
         }
         for (i, m) in self.microphones.iter().enumerate() {
-            if !m.position.coords.iter().all(|v| v.is_finite()) {
+            if !m.position_in_array.coords.iter().all(|v| v.is_finite()) {
                 return Err(err(
                     format!("microphones[{i}].position_m"),
-                    format!("must be finite, got {:?}", m.position.coords.as_slice()),
+                    format!("must be finite, got {:?}", m.position_in_array.coords.as_slice()),
                 ));
             }
-            if m.position.coords.norm() > 10.0 {
+            if m.position_in_array.coords.norm() > 10.0 {
                 return Err(err(
                     format!("microphones[{i}].position_m"),
                     "is more than 10 m from the array origin (positions are in metres)".into(),
                 ));
             }
-            if let Some(d) = m.direction
+            if let Some(d) = m.axis_in_array
                 && !d.iter().all(|v| v.is_finite())
             {
                 return Err(err(format!("microphones[{i}].direction"), "must be finite".into()));
@@ -310,7 +310,7 @@ impl ArrayGeometry {
                 ));
             }
             for (j, other) in self.microphones[..i].iter().enumerate() {
-                let d = (m.position - other.position).norm();
+                let d = (m.position_in_array - other.position_in_array).norm();
                 if d < MIN_MICROPHONE_SPACING_M {
                     return Err(err(
                         format!("microphones[{i}].position_m"),
@@ -364,7 +364,7 @@ mod tests {
     #[test]
     fn directivity_gain_is_one_in_front_zero_behind() {
         let mut m = mic(0.0, 0.0, 0.0);
-        m.direction = Some(Vector3::z_axis());
+        m.axis_in_array = Some(Vector3::z_axis());
         assert_eq!(m.gain(&Vector3::z_axis()), 1.0);
         assert_eq!(m.gain(&-Vector3::z_axis()), 0.0);
         let g = m.gain(&Vector3::x_axis());
@@ -384,8 +384,8 @@ mod tests {
         let c = g.clone().centred();
         assert!(c.centroid().coords.norm() < 1e-12);
         for (a, b) in g.microphones.iter().zip(&c.microphones) {
-            let pa = g.base_from_array * a.position;
-            let pb = c.base_from_array * b.position;
+            let pa = g.base_from_array * a.position_in_array;
+            let pb = c.base_from_array * b.position_in_array;
             assert!((pa - pb).norm() < 1e-12);
         }
     }
@@ -404,7 +404,7 @@ mod tests {
         let (n, _) = flat.best_fit_plane();
         assert!((n.z - 1.0).abs() < 1e-9);
         let mut bumpy = flat.clone();
-        bumpy.microphones[0].position.z = 0.01;
+        bumpy.microphones[0].position_in_array.z = 0.01;
         assert!(!bumpy.is_planar());
     }
 }

@@ -36,7 +36,7 @@ fn the_example_file_loads() {
     let x = g.base_from_array.rotation * nalgebra::Vector3::x();
     assert!((x - nalgebra::Vector3::y()).norm() < 1e-9);
     assert!((g.default_region.max_angle_rad.to_degrees() - 100.0).abs() < 1e-9);
-    assert!(g.microphones[1].direction.is_some() && g.microphones[0].direction.is_none());
+    assert!(g.microphones[1].axis_in_array.is_some() && g.microphones[0].axis_in_array.is_none());
     g.check_channels(4, "in.wav").unwrap();
 }
 

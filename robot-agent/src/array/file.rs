@@ -135,7 +135,11 @@ pub fn from_toml_str(text: &str, path: &Path) -> Result<ArrayGeometry, AgentErro
                 "needs `direction` (the microphone axis)".into(),
             ));
         }
-        microphones.push(Microphone { position: Point3::from(m.position_m), direction, directivity });
+        microphones.push(Microphone {
+            position_in_array: Point3::from(m.position_m),
+            axis_in_array: direction,
+            directivity,
+        });
     }
 
     let region_given = file.search_region.as_ref().map(|r| {

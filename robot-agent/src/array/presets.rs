@@ -153,15 +153,15 @@ mod tests {
         let g = by_name("16soundsusb-pioneer").unwrap();
         assert_eq!(g.channels(), 16);
         // Channel 1: front-right corner of the inner ring; channel 9: of the outer ring.
-        let m1 = g.microphones[0].position;
+        let m1 = g.microphones[0].position_in_array;
         assert!((m1 - Point3::new(0.0955, -0.1225, -0.0075)).norm() < 1e-12, "{m1}");
-        let m11 = g.microphones[10].position;
+        let m11 = g.microphones[10].position_in_array;
         assert!((m11 - Point3::new(0.166, 0.18, 0.0075)).norm() < 1e-12, "{m11}");
         assert!(g.centroid().coords.norm() < 1e-12);
         let t = g.base_from_array.translation.vector;
         assert!((t.z - (0.48 + 0.0325)).abs() < 1e-12);
         // Ring side lengths.
-        let inner: Vec<_> = g.microphones[..8].iter().map(|m| m.position).collect();
+        let inner: Vec<_> = g.microphones[..8].iter().map(|m| m.position_in_array).collect();
         assert!(((inner[0] - inner[6]).x - 0.191).abs() < 1e-12);
         assert!(((inner[2] - inner[0]).y - 0.245).abs() < 1e-12);
         assert!(!g.is_planar());

@@ -151,7 +151,7 @@ impl SearchTables {
             }
         }
 
-        let directional = array.microphones.iter().any(|m| m.direction.is_some());
+        let directional = array.microphones.iter().any(|m| m.axis_in_array.is_some());
         let weight = |d: &Vector3<f64>, p: usize| -> f32 {
             let u = nalgebra::Unit::new_normalize(*d);
             let (i, j) = pair_mics[p];

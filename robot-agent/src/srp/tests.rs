@@ -27,7 +27,7 @@ fn spectra(array: &ArrayGeometry, dirs: &[Vector3<f64>], amps: &[f64], seed: u64
             let phase = next();
             let w = std::f64::consts::TAU * k as f64 * FS as f64 / N as f64;
             for (i, m) in array.microphones.iter().enumerate() {
-                let ph = phase + w * m.position.coords.dot(d) / 343.0;
+                let ph = phase + w * m.position_in_array.coords.dot(d) / 343.0;
                 out[i * bins + k] += Complex::new((a * ph.cos()) as f32, (a * ph.sin()) as f32);
             }
         }
@@ -129,7 +129,7 @@ fn directional_microphones_still_localize() {
     let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data/arrays/square-4.toml");
     let mut array = ArrayGeometry::load(path.to_str().unwrap()).unwrap();
     for m in &mut array.microphones {
-        m.direction = Some(Vector3::z_axis());
+        m.axis_in_array = Some(Vector3::z_axis());
     }
     let d = Vector3::new(0.5, 0.5, 0.7).normalize();
     let out = localize(&array, &SrpConfig::default(), &spectra(&array, &[d], &[1.0], 4));
