@@ -60,8 +60,9 @@ pub struct ActivePositioningConfig {
     pub theta_max_deg: f64,
     /// A command is void this long after it is issued (s): its `deadline_ns`. Default 30.
     pub command_deadline_s: f64,
-    /// Shortest time between two planner runs (ms); the planner runs on
-    /// estimates, at most this often. Default 100.
+    /// Shortest time between two planning cycles (ms); cycles run on
+    /// estimates, at most this often. Goals are issued at most once per
+    /// `planner.planning_period_s` (see `planner::cadence`). Default 100.
     pub evaluate_period_ms: u64,
     /// A goal a robot refused or failed to reach is not sent to it again for
     /// this long (s), unless it differs by more than `retry_distance_m`. Default 10.

@@ -3,11 +3,13 @@
 //! GDOP stays low (theory §2.4 and §3).
 //!
 //! Pure: [`Planner::plan`] takes `now` and a [`PlannerInput`] and returns a
-//! [`PlanOutcome`]; the planner keeps only its hysteresis memory.
+//! [`PlanOutcome`]; the planner keeps only its hysteresis memory and its
+//! [`cadence`]: the one owner of when a planning cycle runs and when robots
+//! may be re-tasked.
 //!
 //! One cycle:
 //! 1. checks the input (≥ 2 robots, finite numbers, a trusted source) and the
-//!    planning period; predicts the source `source_lead_s` ahead;
+//!    re-tasking clock of the [`cadence`]; predicts the source `source_lead_s` ahead;
 //! 2. [`bearings`]: the target pattern from the Fisher information, matched to
 //!    the robots with the least travel (and sticky across cycles); blocked
 //!    ideal spots are replaced by the nearest free spot in their wedge;
@@ -21,12 +23,13 @@
 //! 5. every waypoint is checked against the hard constraints (step, range,
 //!    free space with clearance, separation) before it becomes a [`Goal`].
 //!
-//! Submodules: [`band`] (the θ band), [`config`], [`free_space`], [`bearings`], [`assignment`],
+//! Submodules: [`band`] (the θ band), [`cadence`] (when cycles run), [`config`], [`free_space`], [`bearings`], [`assignment`],
 //! [`pose`], `cycle`, `qp`, `sampling`, `waypoints`, `hysteresis`, and the input/outcome types.
 
 pub mod assignment;
 pub mod band;
 pub mod bearings;
+pub mod cadence;
 pub mod config;
 mod cycle;
 pub mod free_space;
@@ -39,9 +42,10 @@ mod sampling;
 mod waypoints;
 
 use nalgebra::Point2;
-use soundmap_proto::Stamp;
+use soundmap_proto::{Stamp, ValidationError};
 
 pub use band::ThetaBand;
+pub use cadence::Cadence;
 pub use config::{PlannerConfig, SamplingConfig};
 pub use free_space::{Blocked, FreeSpace, FreeSpaceConfig, HalfPlane};
 pub use input::{PlannerInput, RobotState, SourceEstimate};
@@ -54,12 +58,13 @@ use pose::sensor_at;
 
 use crate::uncertainty::{Sensor, assess};
 
-/// The placement planner: configuration, free space and hysteresis memory.
+/// The placement planner: configuration, free space, hysteresis memory and cadence.
 #[derive(Clone, Debug)]
 pub struct Planner {
     config: PlannerConfig,
     free: FreeSpace,
     memory: Memory,
+    cadence: Cadence,
 }
 
 /// Per-robot facts of one cycle.
@@ -73,10 +78,41 @@ struct RobotCycle {
 
 impl Planner {
     /// A planner with a validated configuration.
-    pub fn new(config: PlannerConfig) -> Result<Self, soundmap_proto::ValidationError> {
+    pub fn new(config: PlannerConfig) -> Result<Self, ValidationError> {
         config.validate()?;
         let free = FreeSpace::new(&config.free_space, config.wall_clearance_m());
-        Ok(Planner { config, free, memory: Memory::default() })
+        let cadence = Cadence::new(0, config.planning_period_s);
+        Ok(Planner { config, free, memory: Memory::default(), cadence })
+    }
+
+    /// The same planner evaluating at most once per `evaluate_period_ns`
+    /// ([`Planner::cycle_due`]); [`Planner::new`] evaluates on every call.
+    pub fn with_evaluate_period_ns(mut self, evaluate_period_ns: i64) -> Self {
+        self.cadence = Cadence::new(evaluate_period_ns, self.config.planning_period_s);
+        self
+    }
+
+    /// A planner for `config` that keeps this one's evaluation clock (its
+    /// hysteresis memory and re-tasking clock start afresh, as after [`Planner::new`]).
+    pub fn reconfigured(&self, config: PlannerConfig) -> Result<Self, ValidationError> {
+        let mut cadence = Cadence::new(self.cadence.evaluate_period_ns(), config.planning_period_s);
+        if let Some(t) = self.cadence.last_cycle() {
+            cadence.cycle_ran(t);
+        }
+        let mut planner = Planner::new(config)?;
+        planner.cadence = cadence;
+        Ok(planner)
+    }
+
+    /// Whether a planning cycle is due at `now` (see [`cadence`]).
+    pub fn cycle_due(&self, now: Stamp) -> bool {
+        self.cadence.cycle_due(now)
+    }
+
+    /// Records a cycle that ran without calling [`Planner::plan`] (e.g. no
+    /// usable source estimate): it restarts the evaluation clock.
+    pub fn skip_cycle(&mut self, now: Stamp) {
+        self.cadence.cycle_ran(now);
     }
 
     /// The configuration.
@@ -89,17 +125,20 @@ impl Planner {
         &self.free
     }
 
-    /// Forgets the previous plans (hysteresis state, sticky pattern, rate limit).
+    /// Forgets the previous plans (hysteresis state, sticky pattern) and
+    /// restarts the cadence: the next call is due and may issue goals.
     pub fn reset(&mut self) {
         self.memory = Memory::default();
+        self.cadence.restart();
     }
 
     /// One planning cycle at `now`.
     pub fn plan(&mut self, now: Stamp, input: &PlannerInput) -> PlanOutcome {
+        self.cadence.cycle_ran(now);
         if let Some(h) = check_input(&self.config, input) {
             return PlanOutcome::Hold(h);
         }
-        if let Some(wait_s) = self.memory.wait_s(now, self.config.planning_period_s) {
+        if let Some(wait_s) = self.cadence.retask_wait_s(now) {
             return PlanOutcome::Hold(HoldReason::NotDue { wait_s });
         }
         let cfg = &self.config;
@@ -214,7 +253,7 @@ impl Planner {
                 gdop: current.gdop,
             });
         }
-        self.memory.last_plan_at = Some(now);
+        self.cadence.retasked(now);
         self.memory.planned_source = Some(src);
         self.memory.engaged = Some(reason);
         self.memory.bearings = robots

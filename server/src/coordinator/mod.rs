@@ -8,7 +8,8 @@
 //!   filtered state side by side);
 //! - [`tracking`]: the source tracker fed with every robot's dominant DoA;
 //! - [`positioning`]: the operator's settings, the planner and command
-//!   bookkeeping; `reposition` runs a planning cycle on each estimate.
+//!   bookkeeping; `reposition` runs a planning cycle on an estimate when the
+//!   planner's [`cadence`](crate::planner::cadence) says one is due.
 
 pub mod commands;
 pub mod estimate;

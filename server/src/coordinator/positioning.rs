@@ -24,7 +24,6 @@ pub struct Positioning {
     planner_config: PlannerConfig,
     planner: Planner,
     next_command_id: u64,
-    last_run: Option<Stamp>,
     status: Option<PlannerStatus>,
 }
 
@@ -34,7 +33,8 @@ impl Positioning {
         let ap = &config.active_positioning;
         let planner_config = config.planner_config();
         let planner = Planner::new(planner_config.clone())
-            .map_err(|e| invalid_key("<config>".as_ref(), e.within("planner")))?;
+            .map_err(|e| invalid_key("<config>".as_ref(), e.within("planner")))?
+            .with_evaluate_period_ns(ap.evaluate_period_ms as i64 * 1_000_000);
         Ok(Positioning {
             settings: PositioningSettings {
                 enabled: ap.enabled,
@@ -45,7 +45,6 @@ impl Positioning {
             planner_config,
             planner,
             next_command_id: 1,
-            last_run: None,
             status: None,
         })
     }
@@ -76,7 +75,7 @@ impl Positioning {
             let cfg = PlannerConfig { theta_min_deg: min, theta_max_deg: max, ..self.planner_config.clone() };
             // The band passed ThetaBand, so the planner has nothing else to object to;
             // should it, its error is about the band's edges.
-            self.planner = Planner::new(cfg.clone()).map_err(|e| {
+            self.planner = self.planner.reconfigured(cfg.clone()).map_err(|e| {
                 let field = if blame_max { "theta_max_deg" } else { "theta_min_deg" };
                 ValidationError::new(field, e.problem)
             })?;
@@ -88,28 +87,26 @@ impl Positioning {
             if enabled && !self.settings.enabled {
                 // Plans from before it was switched off say nothing about now.
                 self.planner.reset();
-                self.last_run = None;
             }
             self.settings.enabled = enabled;
         }
         Ok(self.settings)
     }
 
-    /// Whether the planner should run at `now`: enabled, and its evaluation period elapsed.
+    /// Whether a planning cycle should run at `now`: switched on, and due by
+    /// the planner's [`cadence`](crate::planner::cadence) (the one gate).
     pub fn due(&self, now: Stamp) -> bool {
-        let period_ns = self.config.evaluate_period_ms as i64 * 1_000_000;
-        self.settings.enabled && self.last_run.is_none_or(|t| now - t >= period_ns || now < t)
+        self.settings.enabled && self.planner.cycle_due(now)
     }
 
     /// Records that no source estimate can be planned around.
     pub fn no_source(&mut self, now: Stamp, why: String) {
-        self.last_run = Some(now);
+        self.planner.skip_cycle(now);
         self.record(now, PlanKind::Hold, "no_source", why);
     }
 
     /// One planning cycle. `NotDue` waits are returned but not recorded.
     pub fn plan(&mut self, now: Stamp, input: &PlannerInput) -> PlanOutcome {
-        self.last_run = Some(now);
         let outcome = self.planner.plan(now, input);
         match &outcome {
             PlanOutcome::Planned(goals) => {

@@ -1,6 +1,7 @@
 //! A planning cycle of the coordinator, and the operator's switch.
 //!
-//! On an estimate, when active positioning is on and due:
+//! On an estimate, when active positioning is on and a cycle is due (the
+//! planner's [`cadence`](crate::planner::cadence) alone decides that):
 //! 1. the source: the confirmed track, else a usable triangulation
 //!    ([`Estimate::planning_source`]);
 //! 2. the robots: every live robot with a known pose (its last pose, its

@@ -14,10 +14,10 @@
 //!   were planned; the target pattern is sticky (see [`bearings`](super::bearings)).
 //! - An idle robot the source has come closer to than r_min (or left beyond
 //!   r_max) is re-tasked even when θ and GDOP are fine.
-//! - Re-tasking happens at most once per planning period.
+//! - Re-tasking happens at most once per planning period (see [`cadence`](super::cadence)).
 
 use nalgebra::Point3;
-use soundmap_proto::{RepositionReason, RobotId, Stamp};
+use soundmap_proto::{RepositionReason, RobotId};
 
 use super::config::PlannerConfig;
 use super::outcome::HoldReason;
@@ -25,8 +25,6 @@ use super::outcome::HoldReason;
 /// What the planner remembers between cycles.
 #[derive(Clone, Debug, Default, PartialEq)]
 pub(crate) struct Memory {
-    /// When goals were last issued.
-    pub last_plan_at: Option<Stamp>,
     /// The (predicted) source position they were planned for.
     pub planned_source: Option<Point3<f64>>,
     /// The correction in progress, if any.
@@ -36,12 +34,6 @@ pub(crate) struct Memory {
 }
 
 impl Memory {
-    /// Seconds to wait before re-tasking is allowed, if any.
-    pub fn wait_s(&self, now: Stamp, period_s: f64) -> Option<f64> {
-        let since = now.seconds_since(self.last_plan_at?);
-        (since >= 0.0 && since < period_s).then_some(period_s - since)
-    }
-
     /// Previous target bearing of robot `id`.
     pub fn bearing_of(&self, id: &RobotId) -> Option<f64> {
         self.bearings.iter().find(|(r, _)| r == id).map(|b| b.1)
@@ -195,13 +187,5 @@ mod tests {
         assert!(matches!(decide(&cfg, None, &s), Decision::Hold(HoldReason::GeometryGood { .. })));
         s.idle_out_of_ring = true;
         assert_eq!(decide(&cfg, None, &s), Decision::Replan(RepositionReason::FollowSource));
-    }
-
-    #[test]
-    fn replanning_is_rate_limited() {
-        let m = Memory { last_plan_at: Some(Stamp::from_secs_f64(10.0)), ..Default::default() };
-        assert!((m.wait_s(Stamp::from_secs_f64(10.5), 2.0).unwrap() - 1.5).abs() < 1e-9);
-        assert_eq!(m.wait_s(Stamp::from_secs_f64(12.0), 2.0), None);
-        assert_eq!(Memory::default().wait_s(Stamp::ZERO, 2.0), None);
     }
 }
