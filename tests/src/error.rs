@@ -5,10 +5,17 @@
 //! simulated robot may legitimately experience (a goal it has not reached yet)
 //! is an outcome returned by the API, not an error.
 
+use std::path::PathBuf;
+
 use nalgebra::Point3;
 
 /// Everything that can go wrong in `soundmap-sim`.
-#[derive(Debug, thiserror::Error, Clone, PartialEq)]
+///
+/// Errors of other crates are wrapped with their source kept (`#[from]` or
+/// `#[source]`), not flattened to text. The text variants [`SimError::Io`],
+/// [`SimError::Agent`] and [`SimError::Coordinator`] remain for the code that
+/// has not moved to the typed ones yet.
+#[derive(Debug, thiserror::Error)]
 pub enum SimError {
     /// A configuration value is out of its valid range.
     #[error("invalid {field}: {reason}")]
@@ -46,7 +53,65 @@ pub enum SimError {
         /// What is wrong.
         message: String,
     },
-    /// A file could not be read or written.
+    /// A file or directory could not be read or written.
+    #[error("{}: {source}", path.display())]
+    File {
+        /// The file or directory.
+        path: PathBuf,
+        /// The underlying error.
+        #[source]
+        source: std::io::Error,
+    },
+    /// A WAV file could not be written or read.
+    #[error("{}: {source}", path.display())]
+    Wav {
+        /// The file.
+        path: PathBuf,
+        /// The underlying error.
+        #[source]
+        source: hound::Error,
+    },
+    /// A JSON document could not be written.
+    #[error("{what}: {source}")]
+    Json {
+        /// What was being written (a file name or a description).
+        what: String,
+        /// The underlying error.
+        #[source]
+        source: serde_json::Error,
+    },
+    /// A figure could not be drawn (plotters' backends have different error
+    /// types, so its error comes as text).
+    #[error("{}: {message}", path.display())]
+    Plot {
+        /// The image file being drawn.
+        path: PathBuf,
+        /// What went wrong.
+        message: String,
+    },
+    /// The async runtime could not be started.
+    #[error("tokio runtime: {0}")]
+    Runtime(#[source] std::io::Error),
+    /// A loopback socket could not be bound or used.
+    #[error("{addr}: {source}")]
+    Net {
+        /// The address.
+        addr: String,
+        /// The underlying error.
+        #[source]
+        source: std::io::Error,
+    },
+    /// The robot agent library failed (array, audio, poses, link, pipeline).
+    #[error("agent: {0}")]
+    AgentLib(#[from] soundmap_agent::AgentError),
+    /// The coordinator library failed (configuration, start, stop).
+    #[error("coordinator: {0}")]
+    Server(#[from] soundmap_server::ServerError),
+    /// A value failed the shared domain types' validation (e.g. a robot id).
+    #[error(transparent)]
+    Validation(#[from] soundmap_proto::ValidationError),
+    /// A file could not be read or written (text form; new code uses
+    /// [`SimError::File`], [`SimError::Wav`], [`SimError::Json`] or [`SimError::Plot`]).
     #[error("{path}: {message}")]
     Io {
         /// The file or directory.
@@ -54,10 +119,10 @@ pub enum SimError {
         /// The underlying error, as text.
         message: String,
     },
-    /// The robot agent library failed (audio, poses, link, pipeline).
+    /// The robot agent library failed (text form; new code uses [`SimError::AgentLib`]).
     #[error("agent: {0}")]
     Agent(String),
-    /// The coordinator failed to start or stop.
+    /// The coordinator failed (text form; new code uses [`SimError::Server`]).
     #[error("coordinator: {0}")]
     Coordinator(String),
     /// A replay's inputs do not fit together (lengths, time ranges, gaps).
@@ -66,7 +131,12 @@ pub enum SimError {
 }
 
 impl SimError {
-    /// An I/O error about `path`.
+    /// A [`SimError::File`]: `source` while reading or writing `path`.
+    pub fn file(path: impl Into<PathBuf>, source: std::io::Error) -> Self {
+        SimError::File { path: path.into(), source }
+    }
+
+    /// An I/O error about `path`, as text (see [`SimError::file`]).
     pub fn io(path: impl std::fmt::Display, e: impl std::fmt::Display) -> Self {
         SimError::Io { path: path.to_string(), message: e.to_string() }
     }

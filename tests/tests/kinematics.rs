@@ -150,7 +150,7 @@ fn navigator_reaches_a_goal_pose_and_reports_progress() {
     let limits = DriveLimits::default();
     let mut robot = DiffDriveRobot::new(Pose2::new(0.0, 0.0, 0.0), limits, DT).unwrap();
     let mut nav = Navigator::new(NavigatorConfig::default());
-    assert_eq!(nav.set_goal(7, &goal(4.0, 3.0, 2.0), None), Ok(None));
+    assert_eq!(nav.set_goal(7, &goal(4.0, 3.0, 2.0), None).unwrap(), None);
     assert_eq!(nav.progress().unwrap().state, CommandState::Executing);
     let log = run_nav(&mut nav, &mut robot, 60.0);
     let (t_end, state, _) = *log.last().unwrap();

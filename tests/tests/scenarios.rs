@@ -37,6 +37,9 @@ fn bad_scenarios_name_the_file_and_key() {
         (good.replace("z_m = 1.2", "z_m = 9.0"), "trial.toml: sources[0].path[0]:"),
         (good.replace("kind = \"white_noise\"", "kind = \"speech\""), "trial.toml: sources[0].signal"),
         (good.replace("[noise]", "[noise\n"), "trial.toml: (document):"),
+        // A missing key is named itself, not its table or the document.
+        (good.replace("duration_s = 4.0\n", ""), "trial.toml: duration_s: missing"),
+        (good.replace("id = \"turtlebot\"\n", ""), "trial.toml: robots[1].id: missing"),
     ];
     for (text, expected) in cases {
         let e = error_of(&text);

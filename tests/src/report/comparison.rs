@@ -66,10 +66,11 @@ pub fn write_comparison(
         passive: &passive,
         difference: differences(&active, &passive),
     };
-    let mut json = serde_json::to_string_pretty(&comparison).map_err(|e| SimError::io(COMPARISON_JSON, e))?;
+    let mut json = serde_json::to_string_pretty(&comparison)
+        .map_err(|source| SimError::Json { what: COMPARISON_JSON.into(), source })?;
     json.push('\n');
     let path = out_dir.join(COMPARISON_JSON);
-    std::fs::write(&path, json).map_err(|e| SimError::io(path.display(), e))?;
+    std::fs::write(&path, json).map_err(|e| SimError::file(&path, e))?;
 
     let (d_on, d_off) = (Derived::new(on), Derived::new(off));
     plots::save(&ComparisonTheta { on: (on, &d_on), off: (off, &d_off) }, out_dir, COMPARISON_PLOT_STEM)?;

@@ -57,10 +57,10 @@ pub const COMPARISON_PLOT_STEM: &str = "comparison_theta";
 ///
 /// Errors: a record whose rows are not in time order or whose θ band is not a
 /// finite `lo ≤ hi` ([`SimError::InvalidConfig`]); a file that cannot be written
-/// or drawn ([`SimError::Io`], naming the file).
+/// or drawn ([`SimError::File`], [`SimError::Json`] or [`SimError::Plot`], naming the file).
 pub fn write_reports(record: &RunRecord, out_dir: &Path) -> Result<Summary, SimError> {
     validate(record)?;
-    std::fs::create_dir_all(out_dir).map_err(|e| SimError::io(out_dir.display(), e))?;
+    std::fs::create_dir_all(out_dir).map_err(|e| SimError::file(out_dir, e))?;
     let derived = Derived::new(record);
 
     write(out_dir, TIMELINE_CSV, &csv::timeline_csv(record))?;
@@ -118,5 +118,5 @@ pub fn commands_csv(record: &RunRecord) -> String {
 /// Write `contents` to `dir/name`.
 fn write(dir: &Path, name: &str, contents: &str) -> Result<(), SimError> {
     let path = dir.join(name);
-    std::fs::write(&path, contents).map_err(|e| SimError::io(path.display(), e))
+    std::fs::write(&path, contents).map_err(|e| SimError::file(&path, e))
 }

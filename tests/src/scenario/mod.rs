@@ -284,8 +284,16 @@ impl Scenario {
         let de = toml::Deserializer::parse(text)
             .map_err(|e| err("(document)".into(), e.to_string().trim().replace('\n', " ")))?;
         let scenario: Scenario = serde_path_to_error::deserialize(de).map_err(|e| {
-            let field = e.path().to_string();
-            err(if field == "." { "(document)".into() } else { field }, e.into_inner().message().to_string())
+            let at = e.path().to_string();
+            let message = e.into_inner().message().to_string();
+            // A missing key is named itself, not its table.
+            let missing = message.strip_prefix("missing field `").and_then(|m| m.split('`').next());
+            match (missing, at.as_str()) {
+                (Some(key), ".") => err(key.into(), "missing".into()),
+                (Some(key), _) => err(format!("{at}.{key}"), "missing".into()),
+                (None, ".") => err("(document)".into(), message),
+                (None, _) => err(at, message),
+            }
         })?;
         scenario.validate(origin)?;
         Ok(scenario)
@@ -307,7 +315,7 @@ impl Scenario {
                 ),
             });
         }
-        let text = std::fs::read_to_string(path).map_err(|e| SimError::io(path.display(), e))?;
+        let text = std::fs::read_to_string(path).map_err(|e| SimError::file(path, e))?;
         Self::from_toml(&text, &path.display().to_string())
     }
 }

@@ -42,18 +42,18 @@ pub trait Figure {
 pub fn save(figure: &impl Figure, out_dir: &Path, stem: &str) -> Result<[PathBuf; 2], SimError> {
     let svg_path = out_dir.join(format!("{stem}.svg"));
     let png_path = out_dir.join(format!("{stem}.png"));
-    style::ensure_fonts().map_err(|e| SimError::io(svg_path.display(), e))?;
+    style::ensure_fonts().map_err(|message| SimError::Plot { path: svg_path.clone(), message })?;
 
     let mut svg = String::new();
     {
         let root = SVGBackend::with_string(&mut svg, figure.size()).into_drawing_area();
-        draw_on(figure, &root).map_err(|e| SimError::io(svg_path.display(), e.0))?;
+        draw_on(figure, &root).map_err(|e| SimError::Plot { path: svg_path.clone(), message: e.0 })?;
     }
-    std::fs::write(&svg_path, svg).map_err(|e| SimError::io(svg_path.display(), e))?;
+    std::fs::write(&svg_path, svg).map_err(|e| SimError::file(&svg_path, e))?;
 
     {
         let root = BitMapBackend::new(&png_path, figure.size()).into_drawing_area();
-        draw_on(figure, &root).map_err(|e| SimError::io(png_path.display(), e.0))?;
+        draw_on(figure, &root).map_err(|e| SimError::Plot { path: png_path.clone(), message: e.0 })?;
     }
     Ok([svg_path, png_path])
 }
