@@ -164,8 +164,8 @@ pub fn load_pipeline(path: &Path) -> Result<PipelineConfig, AgentError> {
 /// key is named itself, with the message `missing`.
 pub(crate) fn from_toml<T: serde::de::DeserializeOwned>(text: &str, path: &Path) -> Result<T, AgentError> {
     let de = toml::Deserializer::parse(text).map_err(|e| {
-        let field = e.span().map(|s| field_at(text, s.start)).unwrap_or_default();
-        config_error(path, &field, e.message().trim())
+        let field = e.span().map(|s| field_at(text, s.start)).filter(|f| !f.is_empty());
+        config_error(path, field.as_deref().unwrap_or("(document)"), e.message().trim())
     })?;
     serde_path_to_error::deserialize(de).map_err(|e| {
         let at = e.path().to_string();

@@ -186,6 +186,9 @@ fn type_and_unknown_key_errors_name_the_dotted_path() {
     // A syntax error still names the key on its line.
     let e = shown_error("hop_len = 128\nwindow", "hop_len = 12 8\nwindow");
     assert!(e.starts_with("agent.toml: pipeline.hop_len: "), "{e}");
+    // One that is on no key names the document.
+    let e = AgentConfig::parse("\n= 3\n", Path::new("agent.toml")).unwrap_err().to_string();
+    assert!(e.starts_with("agent.toml: (document): "), "{e}");
 }
 
 #[test]
