@@ -54,8 +54,8 @@ fn rays_around(source: Point3<f64>, n: usize, k: usize) -> Vec<Ray> {
             let wobble =
                 Vector3::new((k as f64 * 0.37 + i as f64).sin(), (k as f64 * 0.71).cos(), 0.3) * 0.05;
             Ray {
-                origin: o,
-                direction: Unit::new_normalize(source - o + wobble),
+                origin_in_map: o,
+                direction_in_map: Unit::new_normalize(source - o + wobble),
                 sigma_rad: 0.05,
                 origin_sigma_m: 0.01,
             }
@@ -72,7 +72,12 @@ fn bench_triangulation(quick: bool) {
     let n = if quick { 20_000 } else { 200_000 };
     let paper = time_per_call(5, n, |i| {
         let r = &sets[i % 256];
-        black_box(paper_ray_to_ray(&r[0].origin, &r[0].direction, &r[1].origin, &r[1].direction));
+        black_box(paper_ray_to_ray(
+            &r[0].origin_in_map,
+            &r[0].direction_in_map,
+            &r[1].origin_in_map,
+            &r[1].direction_in_map,
+        ));
     });
     let pair = time_per_call(5, n, |i| {
         black_box(triangulate(black_box(&sets[i % 256]), &cfg));
@@ -118,7 +123,7 @@ fn tracker_doas(seconds: f64) -> Vec<(Stamp, u32, Ray)> {
             out.push((
                 t0.plus_secs(t),
                 i as u32,
-                Ray { origin: *o, direction, sigma_rad: sigma, origin_sigma_m: 0.0 },
+                Ray { origin_in_map: *o, direction_in_map: direction, sigma_rad: sigma, origin_sigma_m: 0.0 },
             ));
         }
     }

@@ -14,9 +14,9 @@ pub const MIN_RANGE_M: f64 = 0.3;
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Ray {
     /// Array centre in the map frame (m).
-    pub origin: Point3<f64>,
+    pub origin_in_map: Point3<f64>,
     /// Unit direction toward the source, map frame.
-    pub direction: Unit<Vector3<f64>>,
+    pub direction_in_map: Unit<Vector3<f64>>,
     /// 1-σ angular noise per tangent axis (rad): the DoA's own uncertainty
     /// combined with the pose's rotation uncertainty.
     pub sigma_rad: f64,
@@ -40,21 +40,26 @@ impl Ray {
         pose_covariance: Option<&Matrix6<f64>>,
     ) -> Ray {
         let map_from_array = map_from_base * base_from_array;
-        let origin = map_from_array * Point3::origin();
-        let direction = Unit::new_normalize(map_from_array * doa_in_array.into_inner());
+        let origin_in_map = map_from_array * Point3::origin();
+        let direction_in_map = Unit::new_normalize(map_from_array * doa_in_array.into_inner());
         let (mut var_ang, mut var_pos) = (doa_sigma_rad * doa_sigma_rad, 0.0);
         if let Some(c) = pose_covariance {
-            let (b1, b2) = tangent_basis(&direction);
+            let (b1, b2) = tangent_basis(&direction_in_map);
             let pos: Matrix3<f64> = c.fixed_view::<3, 3>(0, 0).into();
             let rot: Matrix3<f64> = c.fixed_view::<3, 3>(3, 3).into();
             // A small rotation δφ moves the direction by δφ × d; on the tangent axes
             // b_k that is b_kᵀ[−d]ₓδφ = (d × b_k)ᵀ δφ.
-            let a1 = direction.cross(&b1);
-            let a2 = direction.cross(&b2);
+            let a1 = direction_in_map.cross(&b1);
+            let a2 = direction_in_map.cross(&b2);
             var_ang += 0.5 * ((a1.transpose() * rot * a1)[0] + (a2.transpose() * rot * a2)[0]);
             var_pos += 0.5 * ((b1.transpose() * pos * b1)[0] + (b2.transpose() * pos * b2)[0]);
         }
-        Ray { origin, direction, sigma_rad: var_ang.max(0.0).sqrt(), origin_sigma_m: var_pos.max(0.0).sqrt() }
+        Ray {
+            origin_in_map,
+            direction_in_map,
+            sigma_rad: var_ang.max(0.0).sqrt(),
+            origin_sigma_m: var_pos.max(0.0).sqrt(),
+        }
     }
 
     /// Lateral variance at range `range_m` (m²): σ²r² + σ_origin².
@@ -70,18 +75,18 @@ impl Ray {
 
     /// Signed distance along the ray to the foot of the perpendicular from `p` (m).
     pub fn along(&self, p: &Point3<f64>) -> f64 {
-        self.direction.dot(&(p - self.origin))
+        self.direction_in_map.dot(&(p - self.origin_in_map))
     }
 
     /// Distance from `p` to the ray's line (m).
     pub fn distance_to(&self, p: &Point3<f64>) -> f64 {
-        let v = p - self.origin;
-        (v - self.direction.into_inner() * self.direction.dot(&v)).norm()
+        let v = p - self.origin_in_map;
+        (v - self.direction_in_map.into_inner() * self.direction_in_map.dot(&v)).norm()
     }
 
     /// The point at distance `s` along the ray.
     pub fn at(&self, s: f64) -> Point3<f64> {
-        self.origin + self.direction.into_inner() * s
+        self.origin_in_map + self.direction_in_map.into_inner() * s
     }
 }
 
@@ -105,8 +110,8 @@ mod tests {
         let base_from_array = Isometry3::translation(0.1, 0.0, 0.48);
         let doa = Unit::new_normalize(Vector3::x());
         let r = Ray::from_doa(&map_from_base, &base_from_array, &doa, 0.05, None);
-        assert!((r.origin - Point3::new(2.0, 1.1, 0.48)).norm() < 1e-12);
-        assert!((r.direction.into_inner() - Vector3::y()).norm() < 1e-12);
+        assert!((r.origin_in_map - Point3::new(2.0, 1.1, 0.48)).norm() < 1e-12);
+        assert!((r.direction_in_map.into_inner() - Vector3::y()).norm() < 1e-12);
         assert_eq!(r.sigma_rad, 0.05);
         assert_eq!(r.origin_sigma_m, 0.0);
     }

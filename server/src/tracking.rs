@@ -94,9 +94,9 @@ pub struct TrackEstimate {
     /// Time the estimate refers to.
     pub stamp: Stamp,
     /// Position, map frame (m).
-    pub position: Point3<f64>,
+    pub position_in_map: Point3<f64>,
     /// Velocity, map frame (m/s).
-    pub velocity: Vector3<f64>,
+    pub velocity_in_map: Vector3<f64>,
     /// Covariance of [x y z vx vy vz] (SI).
     pub covariance: Matrix6<f64>,
     /// √tr of the position covariance (m).
@@ -235,7 +235,7 @@ impl SourceTracker {
         let Some(covariance) = solution.quality.covariance else {
             return InitOutcome::Rejected(InitRejection::NoSolution);
         };
-        self.initialize(stamp, solution.point, covariance * self.config.init_covariance_inflation)
+        self.initialize(stamp, solution.source_in_map, covariance * self.config.init_covariance_inflation)
     }
 
     /// Drops the current track.
@@ -320,8 +320,8 @@ impl SourceTracker {
         TrackEstimate {
             track_id: track.id,
             stamp,
-            position: filter.position(),
-            velocity: filter.velocity(),
+            position_in_map: filter.position(),
+            velocity_in_map: filter.velocity(),
             covariance: filter.covariance,
             position_rms_m,
             state,

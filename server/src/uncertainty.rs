@@ -19,7 +19,7 @@ pub struct Sensor {
 
 impl From<&Ray> for Sensor {
     fn from(r: &Ray) -> Self {
-        Sensor { origin: r.origin, sigma_rad: r.sigma_rad, origin_sigma_m: r.origin_sigma_m }
+        Sensor { origin: r.origin_in_map, sigma_rad: r.sigma_rad, origin_sigma_m: r.origin_sigma_m }
     }
 }
 

@@ -79,7 +79,9 @@ fn bad_planner_and_tracking_keys_name_file_and_key() {
     let path = dir.join("coordinator.toml");
     for (text, key) in [
         ("[planner]\nmax_range_m = -2.0\n", "planner.max_range_m"),
-        ("[planner]\nrobot_speed_mps = 0.0\n", "planner.robot_speed_mps"),
+        ("[planner]\nrobot_speed_m_per_s = 0.0\n", "planner.robot_speed_m_per_s"),
+        // The former spelling still parses, and errors name the key's one spelling.
+        ("[planner]\nrobot_speed_mps = 0.0\n", "planner.robot_speed_m_per_s"),
         ("[planner]\nspeed = 1.0\n", "planner.speed"),
         ("[planner.free_space]\nobstacles = [[[0.0, 0.0], [1.0, 0.0]]]\n", "planner.free_space.obstacles[0]"),
         ("[tracking]\nmaintenance_probability = 1.5\n", "tracking.maintenance_probability"),

@@ -98,7 +98,7 @@ fn two_robots_observing_a_known_source_give_an_estimate_near_it() {
     let n = c.counters();
     assert_eq!((n.observations, n.rejected, n.estimates), (2, 0, 1));
     assert_eq!(c.last_estimate().map(|e| e.stamp), Some(stamp.plus_ns(5 * MS)));
-    let at = c.array_position(&RobotId::parse("b", "id").unwrap()).unwrap();
+    let at = c.array_in_map(&RobotId::parse("b", "id").unwrap()).unwrap();
     assert!((at - array_in_map(base_b)).norm() < 1e-12);
 }
 

@@ -167,7 +167,7 @@ fn side_by_side_pair_is_sent_to_ninety_degrees() {
     // No step limit: one plan reaches (λ/(1+λ) of the way to) the ideal spots.
     let mut cfg = room_config();
     cfg.max_step_m = 20.0;
-    cfg.robot_speed_mps = 20.0;
+    cfg.robot_speed_m_per_s = 20.0;
     let mut planner = Planner::new(cfg.clone()).unwrap();
     let goals = planned(planner.plan(Stamp::ZERO, &input(src, robots.clone())));
     assert_eq!(goals.len(), 2);
@@ -310,7 +310,7 @@ fn blocked_ideal_spot_is_replaced_by_a_free_one_and_noted() {
     // Where the planner would send robot 0 in an empty room.
     let mut open = room_config();
     open.max_step_m = 20.0;
-    open.robot_speed_mps = 20.0;
+    open.robot_speed_m_per_s = 20.0;
     let g0 = planned(Planner::new(open.clone()).unwrap().plan(Stamp::ZERO, &input(src, robots.clone())));
     let ideal = xy(&g0.iter().find(|g| g.robot == 0).unwrap().map_from_base);
     for penalty in [3.0, 0.0] {
@@ -608,7 +608,7 @@ fn closed_loop(cfg: &PlannerConfig, seed: u64) -> RunStats {
 
 fn loop_config() -> PlannerConfig {
     let mut cfg = room_config();
-    cfg.robot_speed_mps = 1.0;
+    cfg.robot_speed_m_per_s = 1.0;
     cfg.planning_period_s = 1.0;
     cfg.max_step_m = 1.0;
     cfg
@@ -693,7 +693,7 @@ proptest! {
         let source = Point3::new(src.0, src.1, src.2);
         let mut cfg = room_config();
         cfg.max_step_m = step;
-        cfg.robot_speed_mps = step;
+        cfg.robot_speed_m_per_s = step;
         cfg.planning_period_s = 1.0;
         cfg.free_space.obstacles = obstacles.iter().map(|o| rect(o.0, o.1, o.0 + o.2, o.1 + o.3)).collect();
         let planner = Planner::new(cfg.clone()).unwrap();
@@ -738,7 +738,7 @@ proptest! {
             cfg.blocked_spot_penalty_m = 0.0;
         }
         cfg.max_step_m = step;
-        cfg.robot_speed_mps = step;
+        cfg.robot_speed_m_per_s = step;
         cfg.planning_period_s = 1.0;
         cfg.free_space.obstacles = obstacles.iter().map(|o| rect(o.0, o.1, o.0 + o.2, o.1 + o.3)).collect();
         let planner = Planner::new(cfg.clone()).unwrap();

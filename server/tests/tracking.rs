@@ -42,7 +42,12 @@ fn perturb(d: &Unit<Vector3<f64>>, sigma: f64, rng: &mut ChaCha8Rng) -> Unit<Vec
 /// A noisy DoA ray from `origin` toward `source`.
 fn doa(origin: Point3<f64>, source: &Point3<f64>, sigma: f64, rng: &mut ChaCha8Rng) -> Ray {
     let d = Unit::new_normalize(source - origin);
-    Ray { origin, direction: perturb(&d, sigma, rng), sigma_rad: sigma, origin_sigma_m: 0.0 }
+    Ray {
+        origin_in_map: origin,
+        direction_in_map: perturb(&d, sigma, rng),
+        sigma_rad: sigma,
+        origin_sigma_m: 0.0,
+    }
 }
 
 /// Stamps (s) of a robot publishing at `rate_hz` from `phase_s` with ±`jitter_s` jitter.
@@ -55,11 +60,11 @@ fn schedule(rate_hz: f64, phase_s: f64, jitter_s: f64, end_s: f64, rng: &mut Cha
 
 /// NEES eᵀP⁻¹e of the position (3 dof) and of the full state (6 dof).
 fn nees(e: &TrackEstimate, position: &Point3<f64>, velocity: &Vector3<f64>) -> (f64, f64) {
-    let dp = e.position - position;
+    let dp = e.position_in_map - position;
     let pos = e.position_covariance().cholesky().expect("SPD position covariance").solve(&dp);
     let mut err = Vector6::zeros();
     err.fixed_rows_mut::<3>(0).copy_from(&dp);
-    err.fixed_rows_mut::<3>(3).copy_from(&(e.velocity - velocity));
+    err.fixed_rows_mut::<3>(3).copy_from(&(e.velocity_in_map - velocity));
     let full = e.covariance.cholesky().expect("SPD covariance").solve(&err);
     (dp.dot(&pos), err.dot(&full))
 }
@@ -77,7 +82,7 @@ fn ideal_config() -> TrackerConfig {
 }
 
 fn finite(e: &TrackEstimate) -> bool {
-    e.position.iter().chain(e.velocity.iter()).chain(e.covariance.iter()).all(|v| v.is_finite())
+    e.position_in_map.iter().chain(e.velocity_in_map.iter()).chain(e.covariance.iter()).all(|v| v.is_finite())
         && e.position_rms_m.is_finite()
         && e.last_nis.is_none_or(f64::is_finite)
         && e.mean_nis.is_none_or(f64::is_finite)
@@ -120,8 +125,11 @@ fn start_from_first_pair(tracker: &mut SourceTracker, doas: &[(f64, u32, Ray)]) 
     let tri = triangulate(&rays, &TriangulationConfig::default());
     let sol = tri.solution().expect("a point").clone();
     let cov = sol.quality.covariance.expect("covariance");
-    assert!(matches!(tracker.initialize(at(doas[second].0), sol.point, cov), InitOutcome::Started { .. }));
-    (sol.point, second + 1)
+    assert!(matches!(
+        tracker.initialize(at(doas[second].0), sol.source_in_map, cov),
+        InitOutcome::Started { .. }
+    ));
+    (sol.source_in_map, second + 1)
 }
 
 /// Runs the static scenario; returns (triangulation RMS, tracker RMS, mean final
@@ -138,7 +146,7 @@ fn run_static(config: &TrackerConfig, runs: u64, end_s: f64) -> (f64, f64, f64, 
             tracker.update(at(*t), *robot, ray);
         }
         let e = tracker.estimate().unwrap();
-        filt_sq += (e.position - STATIC_SOURCE).norm_squared();
+        filt_sq += (e.position_in_map - STATIC_SOURCE).norm_squared();
         nees_sum += nees(&e, &STATIC_SOURCE, &Vector3::zeros()).0;
         predicted += e.position_rms_m;
         assert_eq!(e.state, TrackState::Confirmed, "seed {seed}");
@@ -312,8 +320,11 @@ fn start_moving(config: &TrackerConfig, run: &MovingRun, robots: usize) -> (Sour
     let last = *idx.iter().max().unwrap();
     let sol = triangulate(&rays, &TriangulationConfig::default()).solution().expect("a point").clone();
     let mut tracker = SourceTracker::new(config.clone());
-    let init =
-        tracker.initialize(at(run.doas[last].t), sol.point, sol.quality.covariance.expect("covariance"));
+    let init = tracker.initialize(
+        at(run.doas[last].t),
+        sol.source_in_map,
+        sol.quality.covariance.expect("covariance"),
+    );
     assert!(matches!(init, InitOutcome::Started { .. }));
     (tracker, last + 1)
 }
@@ -363,7 +374,7 @@ fn moving_ensemble(robots: usize, runs: u64) -> Ensemble {
             ens.nees_pos[j] += np;
             ens.nees_full[j] += nf;
             if *t >= settle_s {
-                ens.sq_err += (e.position - p).norm_squared();
+                ens.sq_err += (e.position_in_map - p).norm_squared();
                 ens.sq_count += 1;
             }
         }
@@ -424,8 +435,8 @@ fn feed(tracker: &mut SourceTracker, d: &Doa) -> UpdateOutcome {
 
 /// Largest difference between two estimates' numbers.
 fn max_difference(a: &TrackEstimate, b: &TrackEstimate) -> f64 {
-    let dp = (a.position - b.position).amax();
-    let dv = (a.velocity - b.velocity).amax();
+    let dp = (a.position_in_map - b.position_in_map).amax();
+    let dv = (a.velocity_in_map - b.velocity_in_map).amax();
     let dc = (a.covariance - b.covariance).amax();
     dp.max(dv).max(dc)
 }
@@ -542,7 +553,7 @@ fn same_seed_same_output() {
 /// `ray` turned by `angle_rad` about the vertical.
 fn turned(ray: &Ray, angle_rad: f64) -> Ray {
     let rot = nalgebra::Rotation3::from_axis_angle(&Vector3::z_axis(), angle_rad);
-    Ray { direction: Unit::new_normalize(rot * ray.direction.into_inner()), ..*ray }
+    Ray { direction_in_map: Unit::new_normalize(rot * ray.direction_in_map.into_inner()), ..*ray }
 }
 
 #[test]
@@ -558,7 +569,7 @@ fn gross_outliers_are_gated_and_the_track_survives() {
         // A 40° wrong DoA from robot 1 at 5 s, and a second of 40° reflections from robot 0 at 7 s.
         let outlier = (*robot == 1 && (5.0..5.1).contains(t)) || (*robot == 0 && (7.0..8.0).contains(t));
         if outlier {
-            let bad = doa(ray.origin, &STATIC_SOURCE, SIGMA_3DEG, &mut rng);
+            let bad = doa(ray.origin_in_map, &STATIC_SOURCE, SIGMA_3DEG, &mut rng);
             let bad = turned(&bad, 40f64.to_radians());
             let stamp = at(*t + 0.001);
             let nis = dirty.nis(stamp, &bad).unwrap();
@@ -577,8 +588,8 @@ fn gross_outliers_are_gated_and_the_track_survives() {
     assert_eq!(d.counts.applied, c.counts.applied);
     assert_eq!(d.state, TrackState::Confirmed);
     assert!(d.trusted);
-    assert!((d.position - c.position).norm() < 1e-9);
-    assert!((d.position - STATIC_SOURCE).norm() < 0.2);
+    assert!((d.position_in_map - c.position_in_map).norm() < 1e-9);
+    assert!((d.position_in_map - STATIC_SOURCE).norm() < 0.2);
 }
 
 #[test]
@@ -712,10 +723,10 @@ fn degenerate_inputs_never_give_nan() {
     assert!(matches!(tracker.initialize(at(0.0), source, cov), InitOutcome::Started { .. }));
     let good = doa(Point3::new(5.0, 1.0, 0.5), &source, SIGMA_3DEG, &mut ChaCha8Rng::seed_from_u64(1));
     // A ray from the source's own position, from 10 cm away, NaN and zero directions.
-    let from_source = Ray { origin: source, ..good };
-    let near = Ray { origin: source + Vector3::new(0.1, 0.0, 0.0), ..good };
-    let nan = Ray { direction: Unit::new_unchecked(Vector3::new(f64::NAN, 0.0, 1.0)), ..good };
-    let zero = Ray { direction: Unit::new_unchecked(Vector3::zeros()), ..good };
+    let from_source = Ray { origin_in_map: source, ..good };
+    let near = Ray { origin_in_map: source + Vector3::new(0.1, 0.0, 0.0), ..good };
+    let nan = Ray { direction_in_map: Unit::new_unchecked(Vector3::new(f64::NAN, 0.0, 1.0)), ..good };
+    let zero = Ray { direction_in_map: Unit::new_unchecked(Vector3::zeros()), ..good };
     let inf_sigma = Ray { sigma_rad: f64::INFINITY, ..good };
     assert_eq!(
         tracker.update(at(0.1), 0, &from_source),
@@ -728,12 +739,12 @@ fn degenerate_inputs_never_give_nan() {
         assert!(tracker.nis(at(0.35), ray).is_none());
     }
     // A ray pointing away from the source is gated, not applied.
-    let away = Ray { direction: -good.direction, ..good };
+    let away = Ray { direction_in_map: -good.direction_in_map, ..good };
     assert!(matches!(tracker.update(at(0.4), 0, &away), UpdateOutcome::Gated { .. }));
     let e = tracker.estimate().unwrap();
     assert!(finite(&e));
     assert_eq!((e.counts.unusable, e.counts.gated, e.counts.applied), (5, 1, 0));
-    assert_eq!(e.position, source, "nothing was applied");
+    assert_eq!(e.position_in_map, source, "nothing was applied");
 
     // One robot, parallel rays for a minute: the depth is unobservable; the
     // numbers stay finite and the track is never confirmed nor trusted.

@@ -14,7 +14,12 @@ use soundmap_server::triangulation::{Gate, Method, Triangulation, TriangulationC
 use soundmap_server::uncertainty::{Sensor, assess};
 
 fn exact_ray(origin: Point3<f64>, source: &Point3<f64>, sigma: f64) -> Ray {
-    Ray { origin, direction: Unit::new_normalize(source - origin), sigma_rad: sigma, origin_sigma_m: 0.0 }
+    Ray {
+        origin_in_map: origin,
+        direction_in_map: Unit::new_normalize(source - origin),
+        sigma_rad: sigma,
+        origin_sigma_m: 0.0,
+    }
 }
 
 /// Rotates `d` by a random small angle with N(0, σ²) components on both tangent axes.
@@ -49,11 +54,11 @@ proptest! {
         prop_assume!(origins.iter().all(|o| (o - s).norm() > 0.5));
         let rays: Vec<Ray> = origins.iter().map(|o| exact_ray(*o, &s, 0.05)).collect();
         // Skip geometries that are degenerate by construction (all rays within 5° of parallel).
-        let max_angle = rays.iter().flat_map(|a| rays.iter().map(move |b| a.direction.angle(&b.direction))).fold(0.0, f64::max);
+        let max_angle = rays.iter().flat_map(|a| rays.iter().map(move |b| a.direction_in_map.angle(&b.direction_in_map))).fold(0.0, f64::max);
         prop_assume!(max_angle > 5f64.to_radians());
         match triangulate(&rays, &TriangulationConfig::default()) {
             Triangulation::Solved(sol) => {
-                prop_assert!((sol.point - s).norm() < 1e-9, "error {} m", (sol.point - s).norm());
+                prop_assert!((sol.source_in_map - s).norm() < 1e-9, "error {} m", (sol.source_in_map - s).norm());
                 prop_assert!(sol.residual_chi2 < 1e-9);
             }
             Triangulation::Degenerate(d) => prop_assert!(false, "degenerate: {d}"),
@@ -77,16 +82,16 @@ proptest! {
             let r: f64 = rng.random_range(1.5..5.0);
             let o = s + Vector3::new(r * az.cos(), r * az.sin(), -rng.random_range(0.3..1.0));
             let mut ray = exact_ray(o, &s, 0.05);
-            ray.direction = perturb(&ray.direction, 0.05, &mut rng);
+            ray.direction_in_map = perturb(&ray.direction_in_map, 0.05, &mut rng);
             ray
         }).collect();
         prop_assume!(Vector3::from(axis).norm() > 0.1);
         let t = Isometry3::from_parts(Vector3::from(shift).into(), UnitQuaternion::from_axis_angle(&Unit::new_normalize(Vector3::from(axis)), angle));
-        let moved: Vec<Ray> = rays.iter().map(|r| Ray { origin: t * r.origin, direction: Unit::new_normalize(t * r.direction.into_inner()), ..*r }).collect();
+        let moved: Vec<Ray> = rays.iter().map(|r| Ray { origin_in_map: t * r.origin_in_map, direction_in_map: Unit::new_normalize(t * r.direction_in_map.into_inner()), ..*r }).collect();
         let cfg = TriangulationConfig::default();
         match (triangulate(&rays, &cfg), triangulate(&moved, &cfg)) {
             (Triangulation::Solved(a), Triangulation::Solved(b)) => {
-                prop_assert!((t * a.point - b.point).norm() < 1e-7, "point moved by {}", (t * a.point - b.point).norm());
+                prop_assert!((t * a.source_in_map - b.source_in_map).norm() < 1e-7, "point moved by {}", (t * a.source_in_map - b.source_in_map).norm());
                 let r = t.rotation.to_rotation_matrix();
                 let ca: Matrix3<f64> = r * a.quality.covariance.unwrap() * r.transpose();
                 prop_assert!((ca - b.quality.covariance.unwrap()).abs().max() < 1e-6 * ca.abs().max());
@@ -110,12 +115,12 @@ proptest! {
         let mk = |rng: &mut ChaCha8Rng| {
             let o = Point3::new(rng.random_range(-6.0..6.0), rng.random_range(-6.0..6.0), 0.48);
             let mut r = exact_ray(o, &s, 0.05);
-            r.direction = perturb(&r.direction, 0.05, rng);
+            r.direction_in_map = perturb(&r.direction_in_map, 0.05, rng);
             r
         };
         let (a, b) = (mk(&mut rng), mk(&mut rng));
-        prop_assume!(a.direction.angle(&b.direction) > 1f64.to_radians());
-        let paper = paper_ray_to_ray(&a.origin, &a.direction, &b.origin, &b.direction).unwrap();
+        prop_assume!(a.direction_in_map.angle(&b.direction_in_map) > 1f64.to_radians());
+        let paper = paper_ray_to_ray(&a.origin_in_map, &a.direction_in_map, &b.origin_in_map, &b.direction_in_map).unwrap();
         let ls = weighted_least_squares(&[a, b], 0).unwrap();
         prop_assert!((paper - ls).norm() < 1e-9 * (1.0 + paper.coords.norm()), "paper {paper} ls {ls}");
     }
@@ -129,10 +134,10 @@ proptest! {
     ) {
         let rays: Vec<Ray> = origins.iter().zip(&dirs).filter_map(|(o, d)| {
             let d = Vector3::from(if collapse { dirs[0] } else { *d });
-            (d.norm() > 1e-3).then(|| Ray { origin: point(*o), direction: Unit::new_normalize(d), sigma_rad: 0.0, origin_sigma_m: 0.0 })
+            (d.norm() > 1e-3).then(|| Ray { origin_in_map: point(*o), direction_in_map: Unit::new_normalize(d), sigma_rad: 0.0, origin_sigma_m: 0.0 })
         }).collect();
         if let Triangulation::Solved(s) = triangulate(&rays, &TriangulationConfig::default()) {
-            prop_assert!(s.point.iter().all(|v| v.is_finite()));
+            prop_assert!(s.source_in_map.iter().all(|v| v.is_finite()));
             prop_assert!(!s.quality.gdop.is_nan() && !s.quality.rms_m.is_nan() && !s.condition_number.is_nan());
             prop_assert!(!s.residual_chi2.is_nan() && !s.quality.theta_deg.is_nan());
         }
@@ -145,20 +150,20 @@ fn parallel_antiparallel_behind_and_single_rays() {
     let s = point([0.0, 3.0, 1.0]);
     let a = exact_ray(point([0.0, 0.0, 0.5]), &s, 0.05);
     // Parallel: a second array beside the first, looking the same way.
-    let b = Ray { origin: point([0.5, 0.0, 0.5]), ..a };
+    let b = Ray { origin_in_map: point([0.5, 0.0, 0.5]), ..a };
     assert!(matches!(
         triangulate(&[a, b], &cfg),
         Triangulation::Degenerate(soundmap_server::triangulation::Degeneracy::NearParallel { .. })
     ));
     // Antiparallel: the two arrays look away from each other along one line.
     let c = Ray {
-        origin: point([0.0, 6.0, 1.5]),
-        direction: Unit::new_normalize(-a.direction.into_inner()),
+        origin_in_map: point([0.0, 6.0, 1.5]),
+        direction_in_map: Unit::new_normalize(-a.direction_in_map.into_inner()),
         ..a
     };
     assert!(matches!(triangulate(&[a, c], &cfg), Triangulation::Degenerate(_)));
     // Crossing behind array 1: its ray points away from the other's.
-    let d = Ray { origin: point([3.0, 3.0, 1.0]), direction: Vector3::x_axis(), ..a };
+    let d = Ray { origin_in_map: point([3.0, 3.0, 1.0]), direction_in_map: Vector3::x_axis(), ..a };
     assert!(matches!(
         triangulate(&[a, d], &cfg),
         Triangulation::Degenerate(soundmap_server::triangulation::Degeneracy::BehindArray { ray: 1, .. })
@@ -199,13 +204,13 @@ fn monte_carlo_rms_meets_the_crlb_at_90_degrees() {
             .iter()
             .map(|o| {
                 let mut r = exact_ray(*o, &s, sigma);
-                r.direction = perturb(&r.direction, sigma, &mut rng);
+                r.direction_in_map = perturb(&r.direction_in_map, sigma, &mut rng);
                 r
             })
             .collect();
         if let Triangulation::Solved(sol) = triangulate(&rays, &cfg) {
             assert_eq!(sol.method, Method::RayPair);
-            let e = sol.point - s;
+            let e = sol.source_in_map - s;
             sq += e.norm_squared();
             nees += (e.transpose() * sol.quality.covariance.unwrap().try_inverse().unwrap() * e)[0];
             n += 1;
@@ -246,13 +251,13 @@ fn three_robots_reach_their_bound() {
             .iter()
             .map(|o| {
                 let mut r = exact_ray(*o, &s, sigma);
-                r.direction = perturb(&r.direction, sigma, &mut rng);
+                r.direction_in_map = perturb(&r.direction_in_map, sigma, &mut rng);
                 r
             })
             .collect();
         if let Triangulation::Solved(sol) = triangulate(&rays, &cfg) {
             assert_eq!(sol.method, Method::LevenbergMarquardt);
-            sq += (sol.point - s).norm_squared();
+            sq += (sol.source_in_map - s).norm_squared();
             n += 1;
         }
     }
@@ -275,7 +280,7 @@ fn unconverged_refinement_still_turns_with_the_scene() {
             let r: f64 = rng.random_range(1.5..5.0);
             let o = s + Vector3::new(r * az.cos(), r * az.sin(), -rng.random_range(0.3..1.0));
             let mut ray = exact_ray(o, &s, 0.05);
-            ray.direction = perturb(&ray.direction, 0.05, &mut rng);
+            ray.direction_in_map = perturb(&ray.direction_in_map, 0.05, &mut rng);
             ray
         })
         .collect();
@@ -286,8 +291,8 @@ fn unconverged_refinement_still_turns_with_the_scene() {
     let moved: Vec<Ray> = rays
         .iter()
         .map(|r| Ray {
-            origin: t * r.origin,
-            direction: Unit::new_normalize(t * r.direction.into_inner()),
+            origin_in_map: t * r.origin_in_map,
+            direction_in_map: Unit::new_normalize(t * r.direction_in_map.into_inner()),
             ..*r
         })
         .collect();
@@ -295,7 +300,11 @@ fn unconverged_refinement_still_turns_with_the_scene() {
     match (triangulate(&rays, &cfg), triangulate(&moved, &cfg)) {
         (Triangulation::Solved(a), Triangulation::Solved(b)) => {
             assert_eq!(a.method, Method::LevenbergMarquardt);
-            assert!((t * a.point - b.point).norm() < 1e-9, "moved by {}", (t * a.point - b.point).norm());
+            assert!(
+                (t * a.source_in_map - b.source_in_map).norm() < 1e-9,
+                "moved by {}",
+                (t * a.source_in_map - b.source_in_map).norm()
+            );
         }
         other => panic!("{other:?}"),
     }

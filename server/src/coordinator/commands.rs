@@ -47,7 +47,7 @@ pub struct Refusal {
     /// The command.
     pub command_id: u64,
     /// Its goal pose (map frame).
-    pub goal: Isometry3<f64>,
+    pub goal_map_from_base: Isometry3<f64>,
     /// Coordinator clock when the robot said so.
     pub at: Stamp,
     /// The robot's words.
@@ -104,8 +104,12 @@ impl CommandLog {
     fn refuse(&mut self, now: Stamp, reason: String) {
         if let Some((c, state)) = &mut self.current {
             *state = Some(CommandState::Failed);
-            self.refused =
-                Some(Refusal { command_id: c.command_id, goal: c.goal_map_from_base, at: now, reason });
+            self.refused = Some(Refusal {
+                command_id: c.command_id,
+                goal_map_from_base: c.goal_map_from_base,
+                at: now,
+                reason,
+            });
         }
     }
 
@@ -217,7 +221,7 @@ mod tests {
         log.issue(command(2, 3.0));
         log.progress(Stamp::from_ns(9), &report(2, CommandState::Failed)).unwrap();
         let r = log.refused.clone().unwrap();
-        assert_eq!((r.command_id, r.goal.translation.x, r.reason.as_str()), (2, 3.0, "stuck"));
+        assert_eq!((r.command_id, r.goal_map_from_base.translation.x, r.reason.as_str()), (2, 3.0, "stuck"));
         assert_eq!(log.current.as_ref().unwrap().1, Some(CommandState::Failed));
     }
 }

@@ -52,8 +52,8 @@ impl Estimate {
     /// Best position, if any (map frame, m).
     pub fn position(&self) -> Option<Point3<f64>> {
         match (self.best_source(), &self.filtered) {
-            (BestSource::Filter, Some(f)) => Some(f.position),
-            _ => self.triangulation.solution().map(|s| s.point),
+            (BestSource::Filter, Some(f)) => Some(f.position_in_map),
+            _ => self.triangulation.solution().map(|s| s.source_in_map),
         }
     }
 
@@ -130,9 +130,9 @@ impl Estimate {
     pub fn planning_source(&self, triangulation: &TriangulationConfig) -> Result<SourceEstimate, String> {
         if let Some(f) = self.filtered.as_ref().filter(|f| f.state == TrackState::Confirmed) {
             return Ok(SourceEstimate {
-                position_in_map: f.position,
+                position_in_map: f.position_in_map,
                 covariance_m2: f.position_covariance(),
-                velocity_in_map: Some(f.velocity),
+                velocity_in_map: Some(f.velocity_in_map),
             });
         }
         let s = match &self.triangulation {
@@ -147,9 +147,11 @@ impl Estimate {
             Gate::Rejected(_) => false,
         };
         match (usable, s.quality.covariance) {
-            (true, Some(c)) => {
-                Ok(SourceEstimate { position_in_map: s.point, covariance_m2: c, velocity_in_map: None })
-            }
+            (true, Some(c)) => Ok(SourceEstimate {
+                position_in_map: s.source_in_map,
+                covariance_m2: c,
+                velocity_in_map: None,
+            }),
             (true, None) => Err("no source estimate: the triangulation has no covariance".into()),
             (false, _) => Err(format!(
                 "no usable source estimate: triangulation rejected ({})",

@@ -431,7 +431,7 @@ impl Coordinator {
     }
 
     /// Array centre of a robot in the map at its last pose.
-    pub fn array_position(&self, id: &RobotId) -> Option<Point3<f64>> {
+    pub fn array_in_map(&self, id: &RobotId) -> Option<Point3<f64>> {
         let e = self.robots.get(id)?;
         Some(e.last_pose? * e.hello.array.base_from_array * Point3::origin())
     }

@@ -57,7 +57,7 @@ impl Coordinator {
             let goal_t = goal.map_from_base.translation.vector;
             if let Some(r) = &entry.commands.refused
                 && now - r.at < retry_ns
-                && (r.goal.translation.vector - goal_t).xy().norm() <= ap.retry_distance_m
+                && (r.goal_map_from_base.translation.vector - goal_t).xy().norm() <= ap.retry_distance_m
             {
                 skipped.push(format!(
                     "{} not re-sent the goal it refused as command {} ({})",

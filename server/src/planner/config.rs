@@ -59,8 +59,10 @@ pub struct PlannerConfig {
     /// Largest move per planning cycle (m); the cycle's step is
     /// min(this, robot speed × planning period). Default 1.0.
     pub max_step_m: f64,
-    /// Robot cruise speed (m/s). Default 0.5.
-    pub robot_speed_mps: f64,
+    /// Robot cruise speed (m/s). Default 0.5. The key `robot_speed_mps` is
+    /// accepted as an alias (metres per second are spelled `_m_per_s` in every key).
+    #[serde(alias = "robot_speed_mps")]
+    pub robot_speed_m_per_s: f64,
     /// Shortest time between two re-taskings (s). Default 1.0: a walking source (0.5 m/s) moves half a metre between re-taskings.
     pub planning_period_s: f64,
     /// Robot footprint radius (m). Default 0.25.
@@ -125,7 +127,7 @@ impl Default for PlannerConfig {
             preferred_range_m: 2.0,
             min_separation_m: 0.8,
             max_step_m: 1.0,
-            robot_speed_mps: 0.5,
+            robot_speed_m_per_s: 0.5,
             planning_period_s: 1.0,
             robot_radius_m: 0.25,
             clearance_m: 0.1,
@@ -165,7 +167,7 @@ impl PlannerConfig {
     /// (a robot that reaches each waypoint stops and restarts, and falls behind
     /// a walking source), capped at `max_step_m`.
     pub fn step_m(&self) -> f64 {
-        self.max_step_m.min(1.5 * self.robot_speed_mps * self.planning_period_s)
+        self.max_step_m.min(1.5 * self.robot_speed_m_per_s * self.planning_period_s)
     }
 
     /// Robot radius plus margin: distance kept from walls and obstacles (m).
@@ -183,7 +185,7 @@ impl PlannerConfig {
             ("max_range_m", self.max_range_m),
             ("preferred_range_m", self.preferred_range_m),
             ("max_step_m", self.max_step_m),
-            ("robot_speed_mps", self.robot_speed_mps),
+            ("robot_speed_m_per_s", self.robot_speed_m_per_s),
             ("planning_period_s", self.planning_period_s),
             ("wedge_half_width_deg", self.wedge_half_width_deg),
             ("goal_weight", self.goal_weight),

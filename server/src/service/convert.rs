@@ -29,7 +29,7 @@ pub fn triangulation_to_wire(t: &Triangulation, robots: &[String]) -> wire::Tria
     match t {
         Triangulation::Solved(s) => wire::Triangulation {
             method: method(s.method) as i32,
-            position_in_map_m: Some(point(&s.point)),
+            position_in_map_m: Some(point(&s.source_in_map)),
             covariance: s.quality.covariance.as_ref().map(covariance3_to_wire),
             gdop: finite_or(s.quality.gdop, 0.0),
             theta_deg: s.quality.theta_deg,
@@ -69,8 +69,8 @@ pub fn triangulation_to_wire(t: &Triangulation, robots: &[String]) -> wire::Tria
 /// The wire form of a track's state.
 pub fn filtered_to_wire(f: &TrackEstimate) -> wire::FilteredState {
     wire::FilteredState {
-        position_in_map_m: Some(point(&f.position)),
-        velocity_in_map_m_s: Some(vec3_to_wire(&f.velocity)),
+        position_in_map_m: Some(point(&f.position_in_map)),
+        velocity_in_map_m_s: Some(vec3_to_wire(&f.velocity_in_map)),
         position_covariance: Some(covariance3_to_wire(&f.position_covariance())),
         state: match f.state {
             TrackState::Tentative => wire::TrackState::Tentative,

@@ -156,14 +156,14 @@ pub struct DoaInnovation {
 
 /// Linearizes `ray` at `state` (theory §4.2 B).
 pub fn doa_innovation(state: &CvState, ray: &Ray, model: &DoaNoiseModel) -> Result<DoaInnovation, Unusable> {
-    let finite = ray.origin.iter().chain(ray.direction.iter()).all(|v| v.is_finite())
+    let finite = ray.origin_in_map.iter().chain(ray.direction_in_map.iter()).all(|v| v.is_finite())
         && ray.sigma_rad.is_finite()
         && ray.origin_sigma_m.is_finite()
         && state.is_finite();
     if !finite {
         return Err(Unusable::NonFinite);
     }
-    let v = state.position() - ray.origin;
+    let v = state.position() - ray.origin_in_map;
     let range_m = v.norm();
     if !(range_m >= model.min_range_m) || range_m == 0.0 {
         return Err(Unusable::TooClose { range_m });
@@ -171,7 +171,7 @@ pub fn doa_innovation(state: &CvState, ray: &Ray, model: &DoaNoiseModel) -> Resu
     let v_hat = nalgebra::Unit::new_unchecked(v / range_m);
     let (b1, b2) = tangent_basis(&v_hat);
     let basis = Matrix3x2::from_columns(&[b1, b2]);
-    let d = ray.direction.into_inner() / ray.direction.norm();
+    let d = ray.direction_in_map.into_inner() / ray.direction_in_map.norm();
     if !d.iter().all(|c| c.is_finite()) {
         return Err(Unusable::NonFinite);
     }
@@ -236,7 +236,12 @@ mod tests {
     }
 
     fn ray_through(origin: Point3<f64>, target: Point3<f64>) -> Ray {
-        Ray { origin, direction: Unit::new_normalize(target - origin), sigma_rad: 0.05, origin_sigma_m: 0.0 }
+        Ray {
+            origin_in_map: origin,
+            direction_in_map: Unit::new_normalize(target - origin),
+            sigma_rad: 0.05,
+            origin_sigma_m: 0.0,
+        }
     }
 
     #[test]
@@ -293,11 +298,11 @@ mod tests {
         let toward = s.position() - o;
         // Rotate by 0.3 rad about z: residual norm 0.3.
         let rot = nalgebra::Rotation3::from_axis_angle(&Vector3::z_axis(), 0.3);
-        let ray = Ray { direction: Unit::new_normalize(rot * toward), ..ray_through(o, s.position()) };
+        let ray = Ray { direction_in_map: Unit::new_normalize(rot * toward), ..ray_through(o, s.position()) };
         let inn = doa_innovation(&s, &ray, &MODEL).unwrap();
         assert!((inn.residual.norm() - 0.3).abs() < 1e-12);
         // Pointing exactly away: π, not 0.
-        let away = Ray { direction: Unit::new_normalize(-toward), ..ray };
+        let away = Ray { direction_in_map: Unit::new_normalize(-toward), ..ray };
         let inn = doa_innovation(&s, &away, &MODEL).unwrap();
         assert!((inn.residual.norm() - std::f64::consts::PI).abs() < 1e-12);
         assert!(inn.nis > 1e3);
@@ -306,7 +311,7 @@ mod tests {
     #[test]
     fn zero_range_and_nan_are_unusable_not_nan() {
         let s = state();
-        let at_source = Ray { origin: s.position(), ..ray_through(Point3::origin(), s.position()) };
+        let at_source = Ray { origin_in_map: s.position(), ..ray_through(Point3::origin(), s.position()) };
         assert_eq!(doa_innovation(&s, &at_source, &MODEL), Err(Unusable::TooClose { range_m: 0.0 }));
         let mut nan = ray_through(Point3::origin(), s.position());
         nan.sigma_rad = f64::NAN;

@@ -21,7 +21,7 @@ pub(super) struct Observation {
 
 impl Observation {
     fn numbers(&self) -> [f64; 8] {
-        let (o, d) = (&self.ray.origin, &self.ray.direction);
+        let (o, d) = (&self.ray.origin_in_map, &self.ray.direction_in_map);
         [o.x, o.y, o.z, d.x, d.y, d.z, self.ray.sigma_rad, self.ray.origin_sigma_m]
     }
 }

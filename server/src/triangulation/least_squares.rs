@@ -15,7 +15,9 @@ const MIN_NORMALIZED_DET: f64 = 1e-12;
 pub fn weighted_least_squares(rays: &[Ray], reweights: usize) -> Option<Point3<f64>> {
     let mut x = solve(rays, |r| 1.0 / r.sigma_rad.max(1e-9).powi(2))?;
     for _ in 0..reweights {
-        x = solve(rays, |r| 1.0 / r.lateral_variance((x - r.origin).norm().max(MIN_RANGE_M)).max(1e-18))?;
+        x = solve(rays, |r| {
+            1.0 / r.lateral_variance((x - r.origin_in_map).norm().max(MIN_RANGE_M)).max(1e-18)
+        })?;
     }
     Some(x)
 }
@@ -27,9 +29,9 @@ fn solve(rays: &[Ray], weight: impl Fn(&Ray) -> f64) -> Option<Point3<f64>> {
     let mut wsum = 0.0;
     for r in rays {
         let w = weight(r);
-        let p = Matrix3::identity() - r.direction.into_inner() * r.direction.transpose();
+        let p = Matrix3::identity() - r.direction_in_map.into_inner() * r.direction_in_map.transpose();
         a += p * w;
-        b += p * r.origin.coords * w;
+        b += p * r.origin_in_map.coords * w;
         wsum += w;
     }
     if !(wsum > 0.0) || !wsum.is_finite() {
@@ -55,8 +57,8 @@ mod tests {
             .map(|o| {
                 let origin = Point3::from(*o);
                 Ray {
-                    origin,
-                    direction: Unit::new_normalize(s - origin),
+                    origin_in_map: origin,
+                    direction_in_map: Unit::new_normalize(s - origin),
                     sigma_rad: 0.05,
                     origin_sigma_m: 0.01,
                 }
@@ -64,7 +66,7 @@ mod tests {
             .collect();
         let x = weighted_least_squares(&rays, 3).unwrap();
         assert!((x - s).norm() < 1e-12);
-        let parallel = [rays[0], Ray { origin: Point3::new(0.0, 1.0, 0.5), ..rays[0] }];
+        let parallel = [rays[0], Ray { origin_in_map: Point3::new(0.0, 1.0, 0.5), ..rays[0] }];
         assert!(weighted_least_squares(&parallel, 3).is_none());
     }
 }

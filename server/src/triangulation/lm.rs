@@ -74,10 +74,10 @@ struct Term {
 }
 
 fn residual(ray: &Ray, term: &Term, x: &Point3<f64>) -> Option<(Vector2<f64>, Vector3<f64>, f64)> {
-    let v = x - ray.origin;
+    let v = x - ray.origin_in_map;
     let r = v.norm();
     // Cheirality: the point must lie in front of the array.
-    if !(r > 0.0) || ray.direction.dot(&v) <= 0.0 {
+    if !(r > 0.0) || ray.direction_in_map.dot(&v) <= 0.0 {
         return None;
     }
     let u = v / r;
@@ -102,7 +102,7 @@ pub fn refine(rays: &[Ray], init: Point3<f64>, loss: RobustLoss, max_iterations:
     let terms: Vec<Term> = rays
         .iter()
         .map(|r| {
-            let (b1, b2) = tangent_basis(&r.direction);
+            let (b1, b2) = tangent_basis(&r.direction_in_map);
             Term { b: Matrix2x3::from_rows(&[b1.transpose(), b2.transpose()]) }
         })
         .collect();
@@ -168,8 +168,8 @@ mod tests {
             .map(|o| {
                 let origin = Point3::from(*o);
                 Ray {
-                    origin,
-                    direction: Unit::new_normalize(s - origin),
+                    origin_in_map: origin,
+                    direction_in_map: Unit::new_normalize(s - origin),
                     sigma_rad: 0.05,
                     origin_sigma_m: 0.0,
                 }
@@ -195,7 +195,7 @@ mod tests {
         );
         // A mirror-source DoA 30° off for the last robot.
         let rot = nalgebra::Rotation3::from_axis_angle(&Vector3::z_axis(), 30f64.to_radians());
-        rays[4].direction = Unit::new_normalize(rot * rays[4].direction.into_inner());
+        rays[4].direction_in_map = Unit::new_normalize(rot * rays[4].direction_in_map.into_inner());
         let ls = super::super::least_squares::weighted_least_squares(&rays, 3).unwrap();
         let plain = refine(&rays, ls, RobustLoss::None, 50);
         let robust = refine(&rays, ls, RobustLoss::Cauchy { c: 2.4 }, 50);

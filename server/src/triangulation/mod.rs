@@ -182,7 +182,7 @@ pub struct Solution {
     /// Estimator used.
     pub method: Method,
     /// Estimated source position, map frame (m).
-    pub point: Point3<f64>,
+    pub source_in_map: Point3<f64>,
     /// Covariance, GDOP, θ and ranges at the estimate.
     pub quality: GeometryQuality,
     /// Condition number of the equal-weight normalized LS matrix.
@@ -220,8 +220,8 @@ impl Triangulation {
 /// usual case (a pair with the first ray), O(N²) only when all rays are close to it.
 fn some_pair_apart(rays: &[Ray], angle_deg: f64) -> bool {
     let cos_max = angle_deg.to_radians().cos();
-    let d0 = rays[0].direction;
-    rays[1..].iter().any(|r| d0.dot(&r.direction) <= cos_max) || max_ray_angle_deg(rays) >= angle_deg
+    let d0 = rays[0].direction_in_map;
+    rays[1..].iter().any(|r| d0.dot(&r.direction_in_map) <= cos_max) || max_ray_angle_deg(rays) >= angle_deg
 }
 
 /// Largest angle between the directions of any two rays (degrees).
@@ -229,7 +229,7 @@ fn max_ray_angle_deg(rays: &[Ray]) -> f64 {
     let mut best: f64 = 0.0;
     for i in 0..rays.len() {
         for j in (i + 1)..rays.len() {
-            best = best.max(angle_between_deg(&rays[i].direction, &rays[j].direction));
+            best = best.max(angle_between_deg(&rays[i].direction_in_map, &rays[j].direction_in_map));
         }
     }
     best
@@ -288,15 +288,15 @@ pub fn triangulate(rays: &[Ray], config: &TriangulationConfig) -> Triangulation 
     }
     let quality = assess(rays, &point);
     let condition_number = if n == 2 {
-        condition_number(&[rays[0].direction, rays[1].direction])
+        condition_number(&[rays[0].direction_in_map, rays[1].direction_in_map])
     } else {
-        condition_number(&rays.iter().map(|r| r.direction).collect::<Vec<_>>())
+        condition_number(&rays.iter().map(|r| r.direction_in_map).collect::<Vec<_>>())
     };
     let dof = 2 * n - 3;
     let gate = gate(rays, &point, &quality, condition_number, chi2, dof, config);
     Triangulation::Solved(Solution {
         method,
-        point,
+        source_in_map: point,
         quality,
         condition_number,
         miss_distance_m: miss,
@@ -326,7 +326,7 @@ fn gate(
     dof: usize,
     c: &TriangulationConfig,
 ) -> Gate {
-    let range_m = rays.iter().map(|r| (p - r.origin).norm()).fold(0.0, f64::max);
+    let range_m = rays.iter().map(|r| (p - r.origin_in_map).norm()).fold(0.0, f64::max);
     let threshold = chi2_quantile(dof, c.residual_probability);
     let reason = if range_m > c.max_range_m {
         Some(GateReason::TooFar { range_m, max: c.max_range_m })

@@ -61,8 +61,13 @@ pub struct ClosestPoints {
 
 /// Closest points of the lines of two rays, or `None` if the rays are exactly parallel.
 pub fn closest_points(r0: &Ray, r1: &Ray) -> Option<ClosestPoints> {
-    let (s0, s1) = paper_gains(&r0.origin.coords, &r0.direction, &r1.origin.coords, &r1.direction)?;
-    let c = r0.direction.dot(&r1.direction);
+    let (s0, s1) = paper_gains(
+        &r0.origin_in_map.coords,
+        &r0.direction_in_map,
+        &r1.origin_in_map.coords,
+        &r1.direction_in_map,
+    )?;
+    let c = r0.direction_in_map.dot(&r1.direction_in_map);
     let (c0, c1) = (r0.at(s0), r1.at(s1));
     Some(ClosestPoints { s0, s1, c0, c1, miss_m: (c1 - c0).norm(), sin2: 1.0 - c * c })
 }
@@ -89,8 +94,8 @@ mod tests {
     fn ray(o: [f64; 3], toward: [f64; 3], sigma: f64) -> Ray {
         let origin = Point3::from(o);
         Ray {
-            origin,
-            direction: Unit::new_normalize(Point3::from(toward) - origin),
+            origin_in_map: origin,
+            direction_in_map: Unit::new_normalize(Point3::from(toward) - origin),
             sigma_rad: sigma,
             origin_sigma_m: 0.0,
         }
@@ -101,24 +106,26 @@ mod tests {
         let s = [1.0, 2.0, 1.12];
         let a = ray([0.0, 0.0, 0.48], s, 0.05);
         let b = ray([4.0, 0.5, 0.48], s, 0.05);
-        let p = paper_ray_to_ray(&a.origin, &a.direction, &b.origin, &b.direction).unwrap();
+        let p =
+            paper_ray_to_ray(&a.origin_in_map, &a.direction_in_map, &b.origin_in_map, &b.direction_in_map)
+                .unwrap();
         assert!((p - Point3::from(s)).norm() < 1e-12);
         let x = Vector3::x_axis();
-        assert!(paper_ray_to_ray(&a.origin, &x, &b.origin, &x).is_none());
+        assert!(paper_ray_to_ray(&a.origin_in_map, &x, &b.origin_in_map, &x).is_none());
     }
 
     #[test]
     fn skew_rays_midpoint_and_weights() {
         // Ray 0 along x at z=0, ray 1 along y at z=1 through (2,0,1): closest points (2,0,0) and (2,0,1).
         let r0 = Ray {
-            origin: Point3::origin(),
-            direction: Vector3::x_axis(),
+            origin_in_map: Point3::origin(),
+            direction_in_map: Vector3::x_axis(),
             sigma_rad: 0.01,
             origin_sigma_m: 0.0,
         };
         let r1 = Ray {
-            origin: Point3::new(2.0, -2.0, 1.0),
-            direction: Vector3::y_axis(),
+            origin_in_map: Point3::new(2.0, -2.0, 1.0),
+            direction_in_map: Vector3::y_axis(),
             sigma_rad: 0.01,
             origin_sigma_m: 0.0,
         };
@@ -129,7 +136,13 @@ mod tests {
         let (x, chi2) = weighted_pair_point(&r0, &r1, &cp);
         assert!((x - Point3::new(2.0, 0.0, 0.5)).norm() < 1e-12);
         assert!((chi2 - 1.0 / (2.0 * 0.0004)).abs() < 1e-6);
-        let paper = paper_ray_to_ray(&r0.origin, &r0.direction, &r1.origin, &r1.direction).unwrap();
+        let paper = paper_ray_to_ray(
+            &r0.origin_in_map,
+            &r0.direction_in_map,
+            &r1.origin_in_map,
+            &r1.direction_in_map,
+        )
+        .unwrap();
         assert!((paper - x).norm() < 1e-12);
         // A less precise ray 1 pulls the point toward ray 0's closest point.
         let noisy = Ray { sigma_rad: 0.03, ..r1 };
