@@ -1,17 +1,20 @@
 //! Domain types of the `Monitoring` service and their wire conversions: a
-//! robot's liveness, the planner's latest decision, the operator's active
-//! positioning settings, and covariances read back from the wire.
+//! robot's liveness and state, the planner's latest decision, the operator's
+//! active positioning settings, and covariances read back from the wire.
 //!
 //! The coordinator builds these and sends them; clients (the simulator,
 //! dashboards, tests) read the wire forms back with the same functions. Wire
 //! numbers that must be finite (GDOP, θ) are sent as 0 when they are not: the
 //! wire has no infinities, and `trusted`/the gate tell the rest.
 //!
-//! Conversions of a source estimate (triangulation, filtered state) and of a
-//! robot's full state stay with the coordinator, whose types they read.
+//! Conversions of a source estimate (triangulation, filtered state) stay with
+//! the coordinator, whose estimator types they read.
 
-use nalgebra::Matrix3;
+use nalgebra::{Isometry3, Matrix3};
 
+use crate::geometry::pose_to_wire;
+use crate::messages::{ArrayInfo, CommandState, RepositionCommand};
+use crate::robot_id::RobotId;
 use crate::stamp::Stamp;
 use crate::wire;
 
@@ -33,6 +36,54 @@ impl Liveness {
             Liveness::Live => wire::Liveness::Live,
             Liveness::Stale => wire::Liveness::Stale,
             Liveness::Disconnected => wire::Liveness::Disconnected,
+        }
+    }
+}
+
+/// What monitoring reports of one robot.
+#[derive(Clone, Debug, PartialEq)]
+pub struct RobotStatus<'a> {
+    /// The robot.
+    pub robot_id: &'a RobotId,
+    /// Its liveness now.
+    pub liveness: Liveness,
+    /// Coordinator clock when last heard from.
+    pub last_seen: Stamp,
+    /// Stamp of its last accepted observation.
+    pub last_observation: Option<Stamp>,
+    /// Its base pose in the map at that observation.
+    pub map_from_base: Option<Isometry3<f64>>,
+    /// Its array, from its hello.
+    pub array: &'a ArrayInfo,
+    /// Its software version, from its hello.
+    pub software_version: &'a str,
+    /// Observations accepted since start.
+    pub observations_accepted: u64,
+    /// Observations rejected since start.
+    pub observations_rejected: u64,
+    /// The latest command sent to it and its last report on it (`None`: not yet acknowledged).
+    pub active_command: Option<(&'a RepositionCommand, Option<CommandState>)>,
+}
+
+impl RobotStatus<'_> {
+    /// The wire form (`RobotState`); absent stamps are 0.
+    pub fn to_wire(&self) -> wire::RobotState {
+        wire::RobotState {
+            robot_id: self.robot_id.to_string(),
+            liveness: self.liveness.to_wire() as i32,
+            last_seen_ns: self.last_seen.as_ns(),
+            last_observation_ns: self.last_observation.map_or(0, |s| s.as_ns()),
+            map_from_base: self.map_from_base.as_ref().map(pose_to_wire),
+            array: Some(self.array.to_wire()),
+            software_version: self.software_version.into(),
+            observations_accepted: self.observations_accepted,
+            observations_rejected: self.observations_rejected,
+            active_command: self.active_command.map(|(c, _)| c.to_wire()),
+            active_command_state: self
+                .active_command
+                .and_then(|(_, s)| s)
+                .map_or(wire::CommandState::Unspecified, |s| s.to_wire())
+                as i32,
         }
     }
 }
@@ -165,6 +216,45 @@ mod tests {
         let m = Matrix3::new(1.0, 0.1, 0.2, 0.1, 2.0, 0.3, 0.2, 0.3, 3.0);
         assert_eq!(covariance_from_wire(&covariance3_to_wire(&m)), Some(m));
         assert_eq!(covariance_from_wire(&wire::Covariance3 { values_m2: vec![1.0; 8] }), None);
+    }
+
+    #[test]
+    fn robot_status_reports_its_command_and_the_state_of_it() {
+        let id = RobotId::parse("r1", "id").unwrap();
+        let array = ArrayInfo {
+            base_from_array: Isometry3::translation(0.0, 0.0, 0.5),
+            microphone_count: 4,
+            preset: None,
+            microphone_positions: vec![],
+        };
+        let command = RepositionCommand {
+            command_id: 7,
+            goal_map_from_base: Isometry3::translation(1.0, 2.0, 0.0),
+            look_at_in_map: nalgebra::Point3::origin(),
+            reason: crate::RepositionReason::GdopHigh,
+            detail: String::new(),
+            deadline: Stamp::from_ns(9),
+            issued: Stamp::from_ns(3),
+        };
+        let mut s = RobotStatus {
+            robot_id: &id,
+            liveness: Liveness::Live,
+            last_seen: Stamp::from_ns(8),
+            last_observation: None,
+            map_from_base: None,
+            array: &array,
+            software_version: "v",
+            observations_accepted: 4,
+            observations_rejected: 1,
+            active_command: Some((&command, None)),
+        };
+        let w = s.to_wire();
+        assert_eq!((w.robot_id.as_str(), w.liveness), ("r1", wire::Liveness::Live as i32));
+        assert_eq!((w.last_seen_ns, w.last_observation_ns, w.map_from_base), (8, 0, None));
+        assert_eq!(w.active_command.map(|c| c.command_id), Some(7));
+        assert_eq!(w.active_command_state, wire::CommandState::Unspecified as i32, "not yet acknowledged");
+        s.active_command = Some((&command, Some(CommandState::Executing)));
+        assert_eq!(s.to_wire().active_command_state, wire::CommandState::Executing as i32);
     }
 
     #[test]

@@ -4,7 +4,7 @@
 use std::collections::VecDeque;
 
 use nalgebra::Isometry3;
-pub use soundmap_proto::monitoring::Liveness;
+pub use soundmap_proto::monitoring::{Liveness, RobotStatus};
 use soundmap_proto::{Hello, Stamp};
 
 use super::commands::{CommandLog, ConnId};
@@ -74,6 +74,22 @@ impl RobotEntry {
             accepted: 0,
             rejected: 0,
             commands: CommandLog::default(),
+        }
+    }
+
+    /// What monitoring reports of it, given its liveness.
+    pub fn status(&self, liveness: Liveness) -> RobotStatus<'_> {
+        RobotStatus {
+            robot_id: &self.hello.robot_id,
+            liveness,
+            last_seen: self.last_seen,
+            last_observation: self.last_stamp,
+            map_from_base: self.last_pose,
+            array: &self.hello.array,
+            software_version: &self.hello.software_version,
+            observations_accepted: self.accepted,
+            observations_rejected: self.rejected,
+            active_command: self.commands.current.as_ref().map(|(c, s)| (c, *s)),
         }
     }
 

@@ -12,7 +12,7 @@ use std::time::{Duration, Instant};
 use soundmap_proto::{CommandAck, CommandProgress, Hello, Observation, RobotId, Stamp, wire};
 use tokio::sync::{broadcast, mpsc, oneshot};
 
-use super::convert::{estimate_to_wire, robot_to_wire};
+use super::convert::estimate_to_wire;
 use super::metrics::Metrics;
 use super::status::to_stream_error;
 use crate::clock::Clock;
@@ -379,7 +379,9 @@ impl Actor {
             robots: self
                 .coordinator
                 .robots()
-                .map(|(id, e)| robot_to_wire(e, self.coordinator.liveness_of(id, now).expect("known robot")))
+                .map(|(id, e)| {
+                    e.status(self.coordinator.liveness_of(id, now).expect("known robot")).to_wire()
+                })
                 .collect(),
             sources: self.coordinator.last_estimate().map(estimate_to_wire).into_iter().collect(),
             active_positioning: Some(self.coordinator.positioning().to_wire()),

@@ -1,14 +1,15 @@
-//! Domain → wire conversions of the coordinator's own types for monitoring
-//! (source estimates, robot state), and the JSON-lines form of an estimate.
-//! Those of the types the contract shares (liveness, planner status, active
-//! positioning, covariance read-back) are in [`soundmap_proto::monitoring`].
+//! Domain → wire conversions of the coordinator's estimator types for
+//! monitoring (source estimates: triangulation, filtered state), and the
+//! JSON-lines form of an estimate. Those of the types the contract shares
+//! (robot state, liveness, planner status, active positioning, covariance
+//! read-back) are in [`soundmap_proto::monitoring`].
 
 use nalgebra::Point3;
 use soundmap_proto::geometry::covariance3_to_wire;
 use soundmap_proto::monitoring::finite_or;
-use soundmap_proto::{pose_to_wire, vec3_to_wire, wire};
+use soundmap_proto::{vec3_to_wire, wire};
 
-use crate::coordinator::{BestSource, Estimate, Liveness, RobotEntry};
+use crate::coordinator::{BestSource, Estimate};
 use crate::tracking::{TrackEstimate, TrackState};
 use crate::triangulation::{Gate, Method, Triangulation};
 
@@ -108,28 +109,6 @@ pub fn estimate_to_wire(e: &Estimate) -> wire::SourceEstimate {
         triangulation: Some(tri),
         filtered: e.filtered.as_ref().map(filtered_to_wire),
         lagged: 0,
-    }
-}
-
-/// The wire form of a robot's state.
-pub fn robot_to_wire(e: &RobotEntry, liveness: Liveness) -> wire::RobotState {
-    wire::RobotState {
-        robot_id: e.hello.robot_id.to_string(),
-        liveness: liveness.to_wire() as i32,
-        last_seen_ns: e.last_seen.as_ns(),
-        last_observation_ns: e.last_stamp.map_or(0, |s| s.as_ns()),
-        map_from_base: e.last_pose.as_ref().map(pose_to_wire),
-        array: Some(e.hello.array.to_wire()),
-        software_version: e.hello.software_version.clone(),
-        observations_accepted: e.accepted,
-        observations_rejected: e.rejected,
-        active_command: e.commands.current.as_ref().map(|(c, _)| c.to_wire()),
-        active_command_state: e
-            .commands
-            .current
-            .as_ref()
-            .and_then(|(_, s)| *s)
-            .map_or(wire::CommandState::Unspecified, |s| s.to_wire()) as i32,
     }
 }
 
