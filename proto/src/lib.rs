@@ -23,8 +23,8 @@ pub mod stamp;
 pub use error::{Problem, ValidationError};
 pub use geometry::{Limits, pose_from_wire, pose_to_wire, vec3_to_wire};
 pub use messages::{
-    ArrayInfo, CommandAck, CommandProgress, CommandState, Hello, Observation, RepositionCommand,
-    RepositionReason, RobotInput, TrackedDoa,
+    ArrayInfo, CommandAck, CommandProgress, CommandState, Hello, Observation, PROTOCOL_VERSION,
+    RepositionCommand, RepositionReason, RobotInput, TrackedDoa,
 };
 pub use robot_id::RobotId;
 pub use stamp::Stamp;
@@ -34,6 +34,3 @@ pub use stamp::Stamp;
 pub mod wire {
     include!(concat!(env!("OUT_DIR"), "/soundmap.v1.rs"));
 }
-
-/// Version of the contract this crate implements (`Hello.protocol_version`).
-pub const PROTOCOL_VERSION: u32 = 1;

@@ -9,7 +9,10 @@ use crate::geometry::{
 };
 use crate::robot_id::RobotId;
 use crate::stamp::Stamp;
-use crate::{PROTOCOL_VERSION, wire};
+use crate::wire;
+
+/// Version of the contract this crate implements (`Hello.protocol_version`).
+pub const PROTOCOL_VERSION: u32 = 1;
 
 /// Most DoAs accepted in one observation.
 pub const MAX_DOAS_PER_OBSERVATION: usize = 64;

@@ -231,7 +231,7 @@ mod tests {
             command_id: 7,
             goal_map_from_base: Isometry3::translation(1.0, 2.0, 0.0),
             look_at_in_map: nalgebra::Point3::origin(),
-            reason: crate::RepositionReason::GdopHigh,
+            reason: crate::messages::RepositionReason::GdopHigh,
             detail: String::new(),
             deadline: Stamp::from_ns(9),
             issued: Stamp::from_ns(3),
