@@ -8,20 +8,29 @@
 //! - [`doa_tracker`]: Kalman tracking of DoAs on the sphere (ids, activity).
 //! - [`pipeline`]: STFT → SRP-PHAT → tracker, one hop at a time, allocation-free.
 //!
+//! - [`agent`]: the agent core: hops and poses in; observations, command
+//!   replies and navigation goals out (no I/O; the live agent, the simulator and
+//!   the replay all drive it).
+//!
 //! Shell:
 //! - [`audio`]: WAV, raw PCM, standard input and live capture, stamped blocks.
 //! - [`pose`]: TUM trajectories and live pose feeds, interpolation at a stamp.
 //! - [`odas`]: DoAs from a running ODAS (SST JSON) instead of our own localization.
 //! - [`link`]: the gRPC stream to the coordinator (reconnection, bounded buffer).
 //! - [`navigator`]: executes reposition commands.
+//! - [`live`]: the live agent (`soundmap-agent run`) around the core.
+//! - [`localize`]: the pipeline over a recording, one JSON line per hop.
 //! - [`config`] — the agent configuration file, `agent.toml`.
 
+pub mod agent;
 pub mod array;
 pub mod audio;
 pub mod config;
 pub mod doa_tracker;
 pub mod error;
 pub mod link;
+pub mod live;
+pub mod localize;
 pub mod navigator;
 pub mod odas;
 pub mod pipeline;

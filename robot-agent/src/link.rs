@@ -19,53 +19,15 @@
 //! `StreamError`s (one bad message; the stream stays open) are logged with their
 //! field and message, counted, and surfaced as [`CoordinatorEvent::StreamError`].
 
-mod buffer;
 mod client;
 mod live;
 
 use std::time::Duration;
 
-use soundmap_proto::{RepositionCommand, ValidationError};
-
-pub use buffer::ObservationBuffer;
 pub use client::LinkClient;
-pub use live::{Link, LinkHandle, LinkStats};
+pub use live::{Hop, Link, LinkHandle, LinkInputs, LinkStats};
 
-/// A message from the coordinator other than welcome and acknowledgements.
-#[derive(Clone, Debug, PartialEq)]
-pub enum CoordinatorEvent {
-    /// Drive the base to a goal (replaces any older command).
-    Reposition(RepositionCommand),
-    /// A reposition command that failed validation (the robot should refuse it).
-    InvalidReposition {
-        /// Its id.
-        command_id: u64,
-        /// What is wrong with it.
-        error: ValidationError,
-    },
-    /// Stop executing a command.
-    Cancel {
-        /// The command.
-        command_id: u64,
-        /// Why.
-        reason: String,
-    },
-    /// The coordinator dropped one of our messages.
-    StreamError(StreamErrorReport),
-}
-
-/// A `StreamError` from the coordinator.
-#[derive(Clone, Debug, PartialEq, Eq)]
-pub struct StreamErrorReport {
-    /// google.rpc.Code value (3 INVALID_ARGUMENT, 9 FAILED_PRECONDITION, 11 OUT_OF_RANGE, …).
-    pub code: i32,
-    /// Path of the offending field, e.g. `observation.doas[1].direction_in_array`.
-    pub field: String,
-    /// What is wrong.
-    pub message: String,
-    /// Sequence of the offending observation, when it was one.
-    pub sequence: Option<u64>,
-}
+pub use crate::agent::{CoordinatorEvent, StreamErrorReport};
 
 /// Settings of the live [`Link`].
 #[derive(Clone, Debug, PartialEq)]

@@ -2,8 +2,11 @@
 //!
 //! [`Navigator`] is what the link drives: it submits commands (answered with a
 //! [`CommandAck`]), cancels them, feeds the robot's pose, and collects
-//! [`CommandProgress`] reports. Simulators bring their own implementation;
-//! [`JsonLinesNavigator`] hands goals to a real navigation stack as JSON lines.
+//! [`CommandProgress`] reports; the [agent core](crate::agent) drives it
+//! ([`Agent::exchange_with`](crate::agent::Agent::exchange_with)).
+//! [`JsonLinesNavigator`] hands goals to a real navigation stack as JSON lines;
+//! the simulator's robots implement it with their simulated drive;
+//! [`DecliningNavigator`] refuses every command (replays of recordings).
 //!
 //! Conventions: a newer command replaces an older one (the older one is reported
 //! `Canceled`); a command whose `deadline` has passed is refused or failed.
@@ -18,7 +21,7 @@ use soundmap_proto::{CommandAck, CommandProgress, CommandState, RepositionComman
 use crate::AgentError;
 use crate::pose::StampedPose;
 
-/// Executes reposition commands for the link.
+/// Executes reposition commands for the agent core.
 pub trait Navigator: Send + std::fmt::Debug {
     /// A new command: accept (and start) it, or refuse it with a reason.
     fn submit(&mut self, command: &RepositionCommand, now: Stamp) -> CommandAck;
@@ -229,6 +232,28 @@ impl Navigator for JsonLinesNavigator {
         }
         out.append(&mut self.pending);
     }
+}
+
+/// A navigator for a robot that cannot move (a replayed recording, a fixed
+/// array): every command is refused with `reason`.
+#[derive(Clone, Debug)]
+pub struct DecliningNavigator {
+    reason: String,
+}
+
+impl DecliningNavigator {
+    /// Refuses every command with `reason`.
+    pub fn new(reason: impl Into<String>) -> Self {
+        DecliningNavigator { reason: reason.into() }
+    }
+}
+
+impl Navigator for DecliningNavigator {
+    fn submit(&mut self, c: &RepositionCommand, _now: Stamp) -> CommandAck {
+        CommandAck { command_id: c.command_id, accepted: false, reason: self.reason.clone() }
+    }
+    fn cancel(&mut self, _command_id: u64, _reason: &str, _now: Stamp) {}
+    fn poll_progress(&mut self, _now: Stamp, _out: &mut Vec<CommandProgress>) {}
 }
 
 #[cfg(test)]

@@ -73,10 +73,11 @@ pub struct FrameResult {
 }
 
 impl FrameResult {
-    /// The confirmed tracks as DoAs to send to the coordinator, their σ floored
-    /// (in quadrature) at `sigma_floor_rad` ([`PipelineConfig::doa_sigma_floor_deg`]).
-    pub fn confirmed_doas(&self, sigma_floor_rad: f64) -> Vec<soundmap_proto::TrackedDoa> {
-        self.tracks.iter().filter(|t| t.confirmed).map(|t| t.to_doa(sigma_floor_rad)).collect()
+    /// The confirmed tracks as DoAs, with the tracker's own σ. The agent core
+    /// floors σ ([`PipelineConfig::doa_sigma_floor_deg`], see [`crate::agent`])
+    /// before anything is sent.
+    pub fn confirmed_doas(&self) -> Vec<soundmap_proto::TrackedDoa> {
+        self.tracks.iter().filter(|t| t.confirmed).map(|t| t.to_doa(0.0)).collect()
     }
 }
 

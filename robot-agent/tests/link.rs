@@ -7,8 +7,12 @@ use std::sync::{Arc, Mutex};
 use std::time::Duration;
 
 use nalgebra::{Isometry3, Unit, Vector3};
-use soundmap_agent::link::{CoordinatorEvent, Link, LinkClient, LinkConfig};
-use soundmap_agent::navigator::Navigator;
+use soundmap_agent::agent::{Agent, CoreConfig};
+use soundmap_agent::link::{
+    CoordinatorEvent, Hop, Link, LinkClient, LinkConfig, LinkHandle, LinkInputs, LinkStats,
+};
+use soundmap_agent::navigator::{JsonLinesNavigator, Navigator};
+use soundmap_agent::pose::StampedPose;
 use soundmap_proto::wire::{self, coordinator_message::Msg as Out, robot_message::Msg as In};
 use soundmap_proto::{
     ArrayInfo, CommandAck, CommandProgress, CommandState, Hello, Observation, RepositionCommand, RobotId,
@@ -38,6 +42,8 @@ struct FakeState {
     /// Send a StreamError (before the ack) for this sequence.
     error_on: AtomicU64,
     next_command: AtomicU64,
+    /// Send a reposition command for each observation with DoAs.
+    command_on_doas: AtomicBool,
     /// Set to end every open stream with UNAVAILABLE.
     kill: watch::Sender<bool>,
 }
@@ -53,6 +59,7 @@ impl Fake {
             ack: AtomicBool::new(ack),
             error_on: AtomicU64::new(0),
             next_command: AtomicU64::new(100),
+            command_on_doas: AtomicBool::new(true),
             kill: watch::Sender::new(false),
         };
         (Fake(Arc::new(state)), rx)
@@ -118,7 +125,7 @@ impl wire::robot_link_server::RobotLink for Fake {
                 match m {
                     In::Observation(o) => {
                         let _ = state.got.send(Got::Observation(o.sequence));
-                        if !o.doas.is_empty() {
+                        if !o.doas.is_empty() && state.command_on_doas.load(Ordering::SeqCst) {
                             // A command caused by this observation, sent before its ack.
                             let id = state.next_command.fetch_add(1, Ordering::SeqCst);
                             let _ = tx.send(msg(Out::Reposition(command(id)))).await;
@@ -336,61 +343,105 @@ async fn eventually(what: &str, mut f: impl FnMut() -> bool) {
     }
 }
 
+/// A live link around a fresh core, fed through its channels.
+struct Running {
+    link: LinkHandle,
+    task: JoinHandle<LinkStats>,
+    hops: mpsc::Sender<Hop>,
+    poses: mpsc::Sender<StampedPose>,
+    /// Stamp of the next hop (100 ms apart from now on).
+    next: Stamp,
+}
+
+impl Running {
+    fn start(addr: SocketAddr, capacity: usize, id: &str, navigator: Box<dyn Navigator>) -> Running {
+        let core_config = CoreConfig { buffer_capacity: capacity, ..CoreConfig::default() };
+        let core = Agent::new(hello(id), core_config, "test poses").unwrap();
+        let (hops, hops_rx) = mpsc::channel(64);
+        let (poses, poses_rx) = mpsc::channel(64);
+        let inputs = LinkInputs { hops: hops_rx, poses: Some(poses_rx) };
+        let (link, task) = Link::spawn(config(addr, capacity), core, navigator, inputs, WAIT);
+        Running { link, task, hops, poses, next: Stamp::now() }
+    }
+
+    /// A pose at `x` (m) just after the next hop's stamp, then the hop.
+    async fn hop_at(&mut self, x: f64, with_doa: bool) {
+        let pose = StampedPose {
+            stamp: self.next.plus_ns(1_000_000),
+            map_from_base: Isometry3::translation(x, 0.0, 0.0),
+            covariance: None,
+        };
+        self.poses.send(pose).await.unwrap();
+        let o = observation(with_doa);
+        self.hops.send(Hop { stamp: self.next, doas: o.doas }).await.unwrap();
+        self.next = self.next.plus_ns(100_000_000);
+    }
+
+    async fn hop(&mut self, with_doa: bool) {
+        self.hop_at(0.0, with_doa).await
+    }
+
+    async fn stop(self) -> LinkStats {
+        self.link.shutdown();
+        tokio::time::timeout(WAIT, self.task).await.unwrap().unwrap()
+    }
+}
+
 #[tokio::test]
 async fn link_buffers_while_the_coordinator_is_down_and_drops_the_oldest() {
     // A port with nothing listening yet.
     let addr = tokio::net::TcpListener::bind(any_port()).await.unwrap().local_addr().unwrap();
-    let (link, task) = Link::spawn(config(addr, 3), hello("r1"), Box::<RecordingNavigator>::default());
+    let mut r = Running::start(addr, 3, "r1", Box::<RecordingNavigator>::default());
     for _ in 0..5 {
-        link.send(observation(false));
+        r.hop(true).await;
     }
-    let s = link.stats();
+    eventually("five observations", || r.link.stats().dropped == 2).await;
+    let s = r.link.stats();
     assert_eq!((s.dropped, s.pending, s.connected), (2, 3, false));
-    eventually("a failed connection attempt", || link.stats().connect_failures >= 1).await;
+    eventually("a failed connection attempt", || r.link.stats().connect_failures >= 1).await;
     // The coordinator comes up on that port: the three newest arrive, in order.
     let (fake, mut got) = Fake::new(true);
+    fake.0.command_on_doas.store(false, Ordering::SeqCst);
     let (_, _server) = serve(fake, addr).await;
     assert!(matches!(next(&mut got).await, Got::Hello { .. }));
     for seq in 3..=5 {
         assert_eq!(next_non_heartbeat(&mut got).await, Got::Observation(seq));
     }
-    assert!(link.flush(WAIT).await);
-    let s = link.stats();
+    assert!(r.link.flush(WAIT).await);
+    let s = r.stop().await;
     assert_eq!((s.acked, s.sent, s.dropped, s.pending, s.connects), (3, 3, 2, 0, 1));
-    link.shutdown();
-    tokio::time::timeout(WAIT, task).await.unwrap().unwrap();
 }
 
 #[tokio::test]
 async fn link_reconnects_after_a_restart_and_resends_what_was_not_acknowledged() {
     let (fake_a, mut got_a) = Fake::new(false); // receives, never acknowledges
+    fake_a.0.command_on_doas.store(false, Ordering::SeqCst);
     let (addr, server_a) = serve(fake_a.clone(), any_port()).await;
-    let (link, task) = Link::spawn(config(addr, 100), hello("r1"), Box::<RecordingNavigator>::default());
+    let mut r = Running::start(addr, 100, "r1", Box::<RecordingNavigator>::default());
     for _ in 0..3 {
-        link.send(observation(false));
+        r.hop(true).await;
     }
     assert!(matches!(next(&mut got_a).await, Got::Hello { .. }));
     for seq in 1..=3 {
         assert_eq!(next_non_heartbeat(&mut got_a).await, Got::Observation(seq));
     }
-    assert_eq!(link.stats().pending, 3);
+    assert_eq!(r.link.stats().pending, 3);
     // Restart the coordinator on the same port.
     fake_a.0.kill.send(true).unwrap();
     server_a.abort();
     let _ = server_a.await;
     let (fake_b, mut got_b) = Fake::new(true);
+    fake_b.0.command_on_doas.store(false, Ordering::SeqCst);
     let (_, _server_b) = serve(fake_b, addr).await;
     assert!(matches!(next(&mut got_b).await, Got::Hello { .. }));
     for seq in 1..=3 {
         assert_eq!(next_non_heartbeat(&mut got_b).await, Got::Observation(seq), "resent in order");
     }
-    link.send(observation(false));
+    r.hop(true).await;
     assert_eq!(next_non_heartbeat(&mut got_b).await, Got::Observation(4));
-    assert!(link.flush(WAIT).await);
-    let s = link.stats();
+    assert!(r.link.flush(WAIT).await);
+    let s = r.stop().await;
     assert_eq!((s.connects, s.sent, s.resent, s.acked, s.dropped), (2, 4, 3, 4, 0));
-    link.shutdown();
-    tokio::time::timeout(WAIT, task).await.unwrap().unwrap();
 }
 
 #[tokio::test]
@@ -400,9 +451,9 @@ async fn link_relays_commands_counts_stream_errors_and_sends_heartbeats() {
     let (addr, _server) = serve(fake, any_port()).await;
     let nav = RecordingNavigator::default();
     let submitted = nav.submitted.clone();
-    let (link, task) = Link::spawn(config(addr, 100), hello("r7"), Box::new(nav));
+    let mut r = Running::start(addr, 100, "r7", Box::new(nav));
     assert!(matches!(next(&mut got).await, Got::Hello { .. }));
-    link.send(observation(true)); // causes command 100
+    r.hop(true).await; // causes command 100
     assert_eq!(next_non_heartbeat(&mut got).await, Got::Observation(1));
     let Got::CommandAck(a) = next_non_heartbeat(&mut got).await else { panic!() };
     assert_eq!((a.command_id, a.accepted), (100, true));
@@ -412,23 +463,74 @@ async fn link_relays_commands_counts_stream_errors_and_sends_heartbeats() {
         (100, wire::CommandState::Executing as i32, 2.5)
     );
     assert_eq!(*submitted.lock().unwrap(), vec![100]);
-    // A StreamError does not break the link.
-    link.send(observation(false));
-    link.send(observation(false));
+    // A StreamError does not break the link. The hop after the last DoA is sent
+    // empty (the robot hears nothing), silent hops after it are not.
+    r.hop(false).await;
+    r.hop(false).await;
+    r.hop(false).await;
     assert_eq!(next_non_heartbeat(&mut got).await, Got::Observation(2));
-    assert_eq!(next_non_heartbeat(&mut got).await, Got::Observation(3));
-    assert!(link.flush(WAIT).await);
-    eventually("the stream error to be counted", || link.stats().stream_errors == 1).await;
-    // Idle: heartbeats.
+    assert!(r.link.flush(WAIT).await);
+    eventually("the stream error to be counted", || r.link.stats().stream_errors == 1).await;
+    // Idle: heartbeats, and no further observation.
     let mut heartbeats = 0;
     while heartbeats < 2 {
-        if next(&mut got).await == Got::Heartbeat {
-            heartbeats += 1;
+        match next(&mut got).await {
+            Got::Heartbeat => heartbeats += 1,
+            other => panic!("silent hops sent {other:?}"),
         }
     }
-    let s = link.stats();
-    assert_eq!((s.connects, s.commands, s.stream_errors), (1, 1, 1));
+    let s = r.stop().await;
+    assert_eq!((s.connects, s.commands, s.stream_errors, s.sent), (1, 1, 1, 2));
     assert!(s.heartbeats >= 2);
-    link.shutdown();
-    tokio::time::timeout(WAIT, task).await.unwrap().unwrap();
+}
+
+/// While nothing is heard no observation is sent, yet the navigator must still
+/// see the robot arrive from the pose feed and report the command done.
+#[tokio::test]
+async fn a_command_succeeds_while_the_robot_hears_nothing() {
+    let (fake, mut got) = Fake::new(true);
+    let (addr, _server) = serve(fake, any_port()).await;
+    let dir = std::env::temp_dir().join(format!("soundmap-link-silent-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let goals = dir.join("goals.jsonl");
+    let nav = JsonLinesNavigator::open(&goals, 0.2).unwrap();
+    let mut r = Running::start(addr, 100, "r3", Box::new(nav));
+    assert!(matches!(next(&mut got).await, Got::Hello { .. }));
+    r.hop_at(0.0, true).await; // heard once: the fake sends command 100 to (1, 2)
+    assert_eq!(next_non_heartbeat(&mut got).await, Got::Observation(1));
+    let Got::CommandAck(a) = next_non_heartbeat(&mut got).await else { panic!() };
+    assert!(a.accepted);
+    // The source falls silent; the robot drives to the goal.
+    for k in 1..=10 {
+        let x = k as f64 * 0.1;
+        r.poses
+            .send(StampedPose {
+                stamp: r.next.plus_ns(1_000_000),
+                map_from_base: Isometry3::translation(x, 2.0 * x, 0.0),
+                covariance: None,
+            })
+            .await
+            .unwrap();
+        r.hops.send(Hop { stamp: r.next, doas: vec![] }).await.unwrap();
+        r.next = r.next.plus_ns(100_000_000);
+    }
+    let mut states = vec![];
+    loop {
+        match next_non_heartbeat(&mut got).await {
+            Got::CommandProgress(p) => {
+                states.push(p.state);
+                if p.state == wire::CommandState::Succeeded as i32 {
+                    break;
+                }
+            }
+            Got::Observation(_) => {} // the one empty observation after the DoAs
+            other => panic!("unexpected {other:?}"),
+        }
+    }
+    assert_eq!(states.first(), Some(&(wire::CommandState::Executing as i32)));
+    let s = r.stop().await;
+    assert_eq!(s.sent, 2, "one observation with the DoA, one empty after it");
+    let text = std::fs::read_to_string(&goals).unwrap();
+    assert!(text.contains("\"command_id\":100"), "{text}");
+    let _ = std::fs::remove_dir_all(&dir);
 }

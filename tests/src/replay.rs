@@ -1,7 +1,10 @@
 //! Replay of recorded trials: each robot's multichannel audio and SLAM poses
-//! (TUM) go through the same agent pipeline and the same coordinator, over
-//! gRPC on loopback, in event time and as fast as the CPU allows. With a
-//! truth trajectory (TUM) the run is scored like a simulation.
+//! (TUM) go through the same agent pipeline and the same agent core as a live
+//! robot (`soundmap-agent run` with a WAV and a TUM file sends the same
+//! observations), and the same coordinator, over gRPC on loopback, in event
+//! time and as fast as the CPU allows. Recorded robots cannot move: their
+//! navigator declines every command. With a truth trajectory (TUM) the run is
+//! scored like a simulation.
 //!
 //! Time: pose and truth files are read as seconds from an origin that is the
 //! simulator's epoch ([`SIM_EPOCH`]); audio sample 0 of a robot is at
@@ -18,13 +21,14 @@ use std::collections::BTreeMap;
 use std::path::PathBuf;
 
 use nalgebra::Point3;
+use soundmap_agent::agent::{self, Agent, CoreConfig};
 use soundmap_agent::array::ArrayGeometry;
-use soundmap_agent::audio::{self, AudioInput, AudioSource, BlockOptions};
-use soundmap_agent::link::CoordinatorEvent;
+use soundmap_agent::audio::{self, AudioInput, AudioSource, BlockOptions, stamp_of_frame};
+use soundmap_agent::navigator::DecliningNavigator;
 use soundmap_agent::pipeline::{Pipeline, PipelineConfig};
 use soundmap_agent::pose::tum::{PoseTimeMapping, read_tum};
 use soundmap_agent::pose::{PoseBuffer, PoseBufferConfig, StampedPose};
-use soundmap_proto::{ArrayInfo, CommandAck, Hello, Observation, RobotId, Stamp};
+use soundmap_proto::{Hello, RobotId, Stamp};
 use soundmap_server::CoordinatorConfig;
 
 use crate::error::SimError;
@@ -32,7 +36,7 @@ use crate::report::{RobotPath, RunRecord};
 use crate::runner::fleet::Fleet;
 use crate::runner::robot::pose_covariance;
 use crate::runner::rows::row_of;
-use crate::runner::{BLOCK_LEN, SIM_EPOCH};
+use crate::runner::{BLOCK_LEN, SIM_EPOCH, exchange};
 
 /// One robot's recording, as given on the command line:
 /// `id=ID,audio=F.wav,poses=F.tum,array=PRESET|F.toml[,start=S][,pose_std_m=M][,yaw_std_deg=D]`.
@@ -123,14 +127,13 @@ struct Replayed {
     array: ArrayGeometry,
     pipeline: Pipeline,
     audio: Box<dyn AudioSource>,
-    poses: PoseBuffer,
-    covariance: Option<nalgebra::Matrix6<f64>>,
+    core: Agent,
+    navigator: DecliningNavigator,
     hop: Vec<f32>,
     /// Stamp of the next hop's first sample; `None` once the audio is exhausted.
     next: Option<Stamp>,
     start: Stamp,
     samples_done: u64,
-    skipped: u64,
 }
 
 impl Replayed {
@@ -193,7 +196,15 @@ async fn replay_async(args: &ReplayArgs) -> Result<RunRecord, SimError> {
             start,
         };
         let audio = audio::open(&AudioInput::Wav { path: r.audio.clone() }, &options).map_err(agent)?;
-        let (list, poses) = load_poses(&r.poses, args.max_pose_gap_s)?;
+        let list = read_tum(&r.poses, PoseTimeMapping::new(0.0, SIM_EPOCH))?;
+        if list.is_empty() {
+            return Err(SimError::Replay(format!("{}: no poses", r.poses.display())));
+        }
+        let poses = PoseBufferConfig {
+            capacity: list.len().max(2),
+            max_gap_s: args.max_pose_gap_s,
+            ..PoseBufferConfig::default()
+        };
         let (first, last) = (list[0].stamp, list[list.len() - 1].stamp);
         if first > start.plus_secs(24.0 * 3600.0) || last < start {
             return Err(SimError::Replay(format!(
@@ -222,18 +233,31 @@ async fn replay_async(args: &ReplayArgs) -> Result<RunRecord, SimError> {
             (p, y) => Some(pose_covariance(p.unwrap_or(0.0), y.unwrap_or(0.0).to_radians())),
         };
         let hop = vec![0.0; array.channels() * pipeline.hop_len()];
+        let id = RobotId::parse(&r.id, "id")?;
+        let version = concat!("soundmap-sim replay ", env!("CARGO_PKG_VERSION"));
+        let core_config = CoreConfig {
+            pose_buffer: poses,
+            doa_sigma_floor_rad: pipeline.doa_sigma_floor_rad(),
+            ..CoreConfig::default()
+        };
+        let mut core = Agent::new(
+            agent::hello(id.clone(), &array, version.into()),
+            core_config,
+            &r.poses.display().to_string(),
+        )?;
+        let trajectory = list.into_iter().map(|p| StampedPose { covariance, ..p }).collect();
+        core.handle_trajectory(start, trajectory)?;
         let mut robot = Replayed {
-            id: RobotId::parse(&r.id, "id").map_err(agent)?,
+            id,
             array,
             pipeline,
             audio,
-            poses,
-            covariance,
+            core,
+            navigator: DecliningNavigator::new("replay: a recorded robot cannot move"),
             hop,
             next: None,
             start,
             samples_done: 0,
-            skipped: 0,
         };
         robot.advance()?;
         robots.push(robot);
@@ -242,19 +266,7 @@ async fn replay_async(args: &ReplayArgs) -> Result<RunRecord, SimError> {
         Some(p) => Some(load_poses(p, 1e9)?),
         None => None,
     };
-    let hellos: Vec<Hello> = robots
-        .iter()
-        .map(|r| Hello {
-            robot_id: r.id.clone(),
-            array: ArrayInfo {
-                base_from_array: r.array.base_from_array,
-                microphone_count: r.array.channels() as u32,
-                preset: Some(r.array.name.clone()),
-                microphone_positions: r.array.positions().collect(),
-            },
-            software_version: concat!("soundmap-sim replay ", env!("CARGO_PKG_VERSION")).into(),
-        })
-        .collect();
+    let hellos: Vec<Hello> = robots.iter().map(|r| r.core.hello().clone()).collect();
     let t_start = robots.iter().map(|r| r.start).min().unwrap_or(SIM_EPOCH);
     let mut fleet = Fleet::start(coordinator, &hellos, t_start).await?;
     let mut rows = Vec::new();
@@ -266,28 +278,18 @@ async fn replay_async(args: &ReplayArgs) -> Result<RunRecord, SimError> {
         let r = &mut robots[i];
         let first = r.next.expect("filtered");
         let hop_len = r.pipeline.hop_len() as u64;
-        let fs = r.pipeline.sample_rate_hz() as u64;
-        let sigma_floor = r.pipeline.doa_sigma_floor_rad();
+        let fs = r.pipeline.sample_rate_hz();
         let result = r.pipeline.process_hop(first, &r.hop);
-        let stamp = result.stamp;
-        let doas = result.confirmed_doas(sigma_floor);
+        let (stamp, doas) = (result.stamp, result.confirmed_doas());
         // The coordinator's clock: the end of the simulator-sized block holding this hop.
         let block = BLOCK_LEN as u64;
         let block_end = (r.samples_done / block + 1) * block;
         r.samples_done += hop_len;
-        let now = r.start.plus_ns((block_end as i128 * 1_000_000_000 / fs as i128) as i64);
+        let now = stamp_of_frame(r.start, block_end, fs);
         end = end.max(now);
         fleet.set_time(now);
-        match r.poses.map_from_base(stamp) {
-            Ok(map_from_base) => {
-                let obs =
-                    Observation { sequence: 0, stamp, map_from_base, pose_covariance: r.covariance, doas };
-                for event in fleet.observe(i, obs).await? {
-                    answer(&mut fleet, i, event).await?;
-                }
-            }
-            Err(_) => r.skipped += 1,
-        }
+        r.core.handle_hop(now, stamp, doas);
+        exchange(&mut fleet, &mut r.core, &mut r.navigator, i, now).await?;
         for e in fleet.drain_estimates()? {
             let at = Stamp::from_ns(e.stamp_ns);
             let truth_at = truth
@@ -297,7 +299,7 @@ async fn replay_async(args: &ReplayArgs) -> Result<RunRecord, SimError> {
             let arrays: Vec<Point3<f64>> = robots
                 .iter()
                 .map(|r| {
-                    r.poses.lookup(at).ok().map_or_else(Point3::origin, |p| {
+                    r.core.poses().lookup(at).ok().map_or_else(Point3::origin, |p| {
                         p.map_from_base * r.array.base_from_array * Point3::origin()
                     })
                 })
@@ -308,10 +310,11 @@ async fn replay_async(args: &ReplayArgs) -> Result<RunRecord, SimError> {
     }
     fleet.shutdown().await?;
     for r in &robots {
-        if r.skipped > 0 {
+        let skipped = r.core.stats().hops_without_pose;
+        if skipped > 0 {
             eprintln!(
-                "replay: robot {}: {} hop(s) had no pose at their DoA stamp (outside the pose file or in a gap) and were not sent",
-                r.id, r.skipped
+                "replay: robot {}: {skipped} hop(s) had no pose at their DoA stamp (outside the pose file or in a gap) and were not sent",
+                r.id
             );
         }
     }
@@ -336,21 +339,6 @@ async fn replay_async(args: &ReplayArgs) -> Result<RunRecord, SimError> {
         seed: None,
         commands: vec![],
     })
-}
-
-/// Recorded robots cannot move: reposition commands are refused.
-async fn answer(fleet: &mut Fleet, robot: usize, event: CoordinatorEvent) -> Result<(), SimError> {
-    let id = match event {
-        CoordinatorEvent::Reposition(c) => c.command_id,
-        CoordinatorEvent::InvalidReposition { command_id, .. } => command_id,
-        CoordinatorEvent::Cancel { .. } => return Ok(()),
-        CoordinatorEvent::StreamError(e) => {
-            return Err(SimError::Coordinator(format!("{}: {}", e.field, e.message)));
-        }
-    };
-    let ack =
-        CommandAck { command_id: id, accepted: false, reason: "replay: a recorded robot cannot move".into() };
-    fleet.command_ack(robot, &ack).await
 }
 
 #[cfg(test)]

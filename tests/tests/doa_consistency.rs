@@ -1,8 +1,12 @@
 //! The DoA σ agents report is consistent with their actual errors in a
 //! reverberant room: the coordinator weighs rays, gates and trusts estimates
-//! by it.
+//! by it. The DoAs checked are those of the observations the robot's agent
+//! core sends (σ floored there), not the pipeline's raw output.
 
 use nalgebra::Point3;
+use soundmap_agent::agent::FromCoordinator;
+use soundmap_agent::audio::stamp_of_frame;
+use soundmap_agent::pose::StampedPose;
 use soundmap_sim::acoustics::{direct_path_rms, noise_std_for_snr};
 use soundmap_sim::runner::{BLOCK_LEN, SIM_EPOCH, robot::SimRobot, scene};
 use soundmap_sim::scenario::Scenario;
@@ -18,19 +22,38 @@ fn reported_sigma_matches_errors_in_reverberant_rooms() {
         let reference = direct_path_rms(s.sources[0].rms, s.noise.reference_distance_m);
         let std = noise_std_for_snr(reference, s.noise.sensor_snr_db);
         let mut r =
-            SimRobot::new(0, &s.robots[0], &sc, &s.agent, &s.slam, std, None, 1, BLOCK_LEN, 0.008).unwrap();
+            SimRobot::new(0, &s.robots[0], &sc, &s.agent, &s.slam, std, None, 1, BLOCK_LEN, 0.008, SIM_EPOCH)
+                .unwrap();
         let fs = 16000u64;
         let (mut errs, mut sig, mut nees) = (vec![], vec![], vec![]);
-        let stamp_of = |n: u64| SIM_EPOCH.plus_ns((n as i128 * 1_000_000_000 / fs as i128) as i64);
+        let stamp_of = |n: u64| stamp_of_frame(SIM_EPOCH, n, fs as u32);
+        let hop = s.agent.hop_len as u64;
         for b in 0..(12 * 16000 / BLOCK_LEN as u64) {
+            let first = b * BLOCK_LEN as u64;
             let pose = r.pose().map_from_base();
+            // The robot stays put: its pose after every hop.
+            for k in 1..=BLOCK_LEN as u64 / hop {
+                let stamp = stamp_of(first + k * hop);
+                r.core
+                    .handle_pose(stamp, StampedPose { stamp, map_from_base: pose, covariance: None })
+                    .unwrap();
+            }
             let mics = r.microphones_in_map(&pose);
             let src = [s.sources[0].position_at(0.0)];
-            r.hear(&mics, &src, b * BLOCK_LEN as u64, stamp_of, |_| {}).unwrap();
+            r.hear(&mics, &src, first, stamp_of, |_| {}).unwrap();
+            let now = stamp_of(first + BLOCK_LEN as u64);
+            let mut sent = vec![];
+            for h in r.hops.clone() {
+                r.core.handle_hop(now, h.stamp, h.doas);
+                while let Some(obs) = r.core.poll_observation() {
+                    r.core.handle_coordinator(now, FromCoordinator::Ack { up_to_sequence: obs.sequence });
+                    sent.push(obs);
+                }
+            }
             if b < 60 {
                 continue;
             }
-            for h in r.hops.clone() {
+            for h in sent {
                 for d in &h.doas {
                     let m = pose * r.array.base_from_array;
                     let dir = m * d.direction_in_array.into_inner();

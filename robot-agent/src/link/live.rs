@@ -1,17 +1,32 @@
-//! The live agent's link: reconnection, bounded buffering, heartbeats and the
-//! navigator, in one tokio task fed through a [`LinkHandle`].
+//! The live agent's shell around the [agent core](crate::agent): one tokio
+//! task owns the core, the stream to the coordinator (reconnecting with
+//! backoff, heartbeats when idle) and the navigator. Hops and poses arrive on
+//! channels; the task hands them to the core with the wall clock as `now`, and
+//! sends whatever the core has to say.
 
+use std::future::Future;
+use std::pin::Pin;
 use std::sync::{Arc, Mutex, MutexGuard};
 use std::time::{Duration, Instant};
 
-use soundmap_proto::{CommandAck, Hello, Observation, Stamp};
-use tokio::sync::{Notify, watch};
+use soundmap_proto::{Stamp, TrackedDoa};
+use tokio::sync::{mpsc, watch};
 use tokio::task::JoinHandle;
 
-use super::{CoordinatorEvent, LinkClient, LinkConfig, ObservationBuffer};
+use super::{LinkClient, LinkConfig};
 use crate::AgentError;
+use crate::agent::{Agent, AgentEvent, CoreStats, FromCoordinator, Reply};
 use crate::navigator::Navigator;
 use crate::pose::StampedPose;
+
+/// One hop's tracked DoAs, at its DoA stamp.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Hop {
+    /// DoA stamp.
+    pub stamp: Stamp,
+    /// Tracked DoAs (confirmed tracks; may be empty).
+    pub doas: Vec<TrackedDoa>,
+}
 
 /// Counters of a [`Link`], for logs and tests.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
@@ -38,237 +53,338 @@ pub struct LinkStats {
     pub heartbeats: u64,
     /// Reposition commands received (valid or not).
     pub commands: u64,
+    /// Hops dropped for want of a pose.
+    pub hops_without_pose: u64,
+}
+
+impl LinkStats {
+    fn with_core(self, c: CoreStats) -> Self {
+        LinkStats {
+            sent: c.sent,
+            resent: c.resent,
+            acked: c.acknowledged,
+            dropped: c.dropped,
+            pending: c.pending,
+            stream_errors: c.stream_errors,
+            commands: c.commands,
+            hops_without_pose: c.hops_without_pose,
+            ..self
+        }
+    }
 }
 
 #[derive(Debug)]
 struct Shared {
-    buffer: Mutex<ObservationBuffer>,
     stats: Mutex<LinkStats>,
-    pose: Mutex<Option<StampedPose>>,
-    wake: Notify,
     shutdown: watch::Sender<bool>,
+    idle: watch::Sender<bool>,
 }
 
 fn lock<T>(m: &Mutex<T>) -> MutexGuard<'_, T> {
     m.lock().unwrap_or_else(|e| e.into_inner())
 }
 
-/// The producer side of a running [`Link`]. Cheap to clone; never blocks.
+/// Watches and stops a running [`Link`]. Cheap to clone.
 #[derive(Clone, Debug)]
 pub struct LinkHandle {
     shared: Arc<Shared>,
 }
 
 impl LinkHandle {
-    /// Queues an observation (its sequence number is assigned here and returned).
-    /// When the buffer is full the oldest observation is dropped and counted.
-    pub fn send(&self, obs: Observation) -> u64 {
-        let seq = lock(&self.shared.buffer).push(obs);
-        self.shared.wake.notify_one();
-        seq
-    }
-
-    /// The robot's latest pose, passed on to the navigator.
-    pub fn observe_pose(&self, pose: StampedPose) {
-        *lock(&self.shared.pose) = Some(pose);
-        self.shared.wake.notify_one();
-    }
-
     /// Current counters.
     pub fn stats(&self) -> LinkStats {
-        let (pending, dropped) = {
-            let b = lock(&self.shared.buffer);
-            (b.len(), b.dropped())
-        };
-        LinkStats { pending, dropped, ..*lock(&self.shared.stats) }
+        *lock(&self.shared.stats)
     }
 
-    /// Waits until every queued observation is acknowledged, at most `timeout`.
-    /// Returns whether the buffer emptied.
+    /// Waits until every observation produced so far is acknowledged, at most
+    /// `timeout`. Returns whether that happened.
     pub async fn flush(&self, timeout: Duration) -> bool {
-        let until = Instant::now() + timeout;
-        while Instant::now() < until {
-            if lock(&self.shared.buffer).is_empty() {
-                return true;
-            }
-            tokio::time::sleep(Duration::from_millis(10)).await;
-        }
-        lock(&self.shared.buffer).is_empty()
+        let mut idle = self.shared.idle.subscribe();
+        tokio::time::timeout(timeout, idle.wait_for(|&i| i)).await.is_ok_and(|r| r.is_ok())
     }
 
-    /// Stops the link task (closing the stream).
+    /// Stops the link task now (closing the stream).
     pub fn shutdown(&self) {
         let _ = self.shared.shutdown.send(true);
     }
 }
 
-/// The live agent's link to the coordinator (see the [module docs](super)).
+/// Where a running link gets its inputs.
+#[derive(Debug)]
+pub struct LinkInputs {
+    /// Hops, in stamp order. When every sender is gone, the link resolves the
+    /// hops still waiting for poses, waits for the acknowledgements (at most
+    /// `drain_timeout`), and ends.
+    pub hops: mpsc::Receiver<Hop>,
+    /// Live SLAM poses, in stamp order (none for a replayed trajectory already in the core).
+    pub poses: Option<mpsc::Receiver<StampedPose>>,
+}
+
+/// The live agent's link to the coordinator (see the [module docs](self)).
 #[derive(Debug)]
 pub struct Link;
 
 impl Link {
-    /// Starts the link task on the current tokio runtime. It runs until
-    /// [`LinkHandle::shutdown`]; connection failures are retried with backoff.
+    /// Starts the link task on the current tokio runtime. It runs until its hop
+    /// input ends and everything is acknowledged (or `drain_timeout` passes), or
+    /// until [`LinkHandle::shutdown`]; connection failures are retried with backoff.
+    /// The task returns the final counters.
     pub fn spawn(
         config: LinkConfig,
-        hello: Hello,
+        core: Agent,
         navigator: Box<dyn Navigator>,
-    ) -> (LinkHandle, JoinHandle<()>) {
+        inputs: LinkInputs,
+        drain_timeout: Duration,
+    ) -> (LinkHandle, JoinHandle<LinkStats>) {
         let shared = Arc::new(Shared {
-            buffer: Mutex::new(ObservationBuffer::new(config.buffer_capacity)),
             stats: Mutex::new(LinkStats::default()),
-            pose: Mutex::new(None),
-            wake: Notify::new(),
             shutdown: watch::Sender::new(false),
+            idle: watch::Sender::new(true),
         });
-        let task = tokio::spawn(run(shared.clone(), config, hello, navigator));
-        (LinkHandle { shared }, task)
+        let task = Task {
+            shared: shared.clone(),
+            config,
+            core,
+            navigator,
+            conn: None,
+            connecting: None,
+            retry_at: None,
+            last_send: Instant::now(),
+            stats: LinkStats::default(),
+        };
+        let join = tokio::spawn(task.run(inputs, drain_timeout));
+        (LinkHandle { shared }, join)
     }
 }
 
-async fn run(shared: Arc<Shared>, config: LinkConfig, hello: Hello, mut navigator: Box<dyn Navigator>) {
-    let mut shutdown = shared.shutdown.subscribe();
-    let mut backoff = config.backoff_initial;
-    let mut highest_sent = 0u64;
-    loop {
-        if *shutdown.borrow() {
+type Connecting = Pin<Box<dyn Future<Output = Result<LinkClient, AgentError>> + Send>>;
+
+struct Task {
+    shared: Arc<Shared>,
+    config: LinkConfig,
+    core: Agent,
+    navigator: Box<dyn Navigator>,
+    conn: Option<LinkClient>,
+    connecting: Option<Connecting>,
+    retry_at: Option<Instant>,
+    last_send: Instant,
+    stats: LinkStats,
+}
+
+/// Reads one message from the stream, or waits forever without one.
+async fn receive(conn: &mut Option<LinkClient>) -> Result<(), AgentError> {
+    match conn {
+        Some(c) => c.receive().await,
+        None => std::future::pending().await,
+    }
+}
+
+async fn at(deadline: Option<Instant>) {
+    match deadline {
+        Some(d) => tokio::time::sleep_until(d.into()).await,
+        None => std::future::pending().await,
+    }
+}
+
+async fn maybe<T>(f: &mut Option<Pin<Box<dyn Future<Output = T> + Send>>>) -> T {
+    match f {
+        Some(f) => f.await,
+        None => std::future::pending().await,
+    }
+}
+
+/// The instant of a stamp on the wall clock.
+fn instant_of(stamp: Stamp) -> Instant {
+    Instant::now() + Duration::from_nanos((stamp - Stamp::now()).max(0) as u64)
+}
+
+impl Task {
+    async fn run(mut self, mut inputs: LinkInputs, drain_timeout: Duration) -> LinkStats {
+        let mut shutdown = self.shared.shutdown.subscribe();
+        let tick_period =
+            (self.config.heartbeat_interval / 2).clamp(Duration::from_millis(10), Duration::from_millis(100));
+        let mut tick = tokio::time::interval(tick_period);
+        tick.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Skip);
+        let mut backoff = self.config.backoff_initial;
+        self.connecting = Some(self.connect());
+        let mut drain_until: Option<Instant> = None;
+        loop {
+            self.flush_outputs().await;
+            if let Some(until) = drain_until {
+                let done = self.core.waiting_hops() == 0 && self.core.all_acknowledged();
+                if done || Instant::now() >= until {
+                    if !done {
+                        tracing::warn!(
+                            "{} observation(s) not acknowledged and {} hop(s) still waiting for a pose at shutdown",
+                            self.core.stats().pending,
+                            self.core.waiting_hops()
+                        );
+                    }
+                    break;
+                }
+            }
+            let timeout = self.core.poll_timeout().map(instant_of);
+            tokio::select! {
+                // Poses before hops: a hop then finds its pose without waiting.
+                biased;
+                _ = shutdown.changed() => break,
+                pose = recv_pose(&mut inputs.poses) => match pose {
+                    Some(p) => {
+                        if let Err(e) = self.core.handle_pose(Stamp::now(), p) {
+                            tracing::warn!("{e}");
+                        }
+                    }
+                    None => inputs.poses = None,
+                },
+                hop = inputs.hops.recv(), if drain_until.is_none() => match hop {
+                    Some(h) => self.core.handle_hop(Stamp::now(), h.stamp, h.doas),
+                    None => drain_until = Some(Instant::now() + drain_timeout),
+                },
+                r = receive(&mut self.conn) => match r {
+                    Ok(()) => self.take_coordinator_messages(),
+                    Err(e) => {
+                        self.conn = None;
+                        lock(&self.shared.stats).connected = false;
+                        self.stats.connected = false;
+                        tracing::warn!("{e}; reconnecting in {:.1} s", backoff.as_secs_f64());
+                        self.retry_at = Some(Instant::now() + backoff);
+                    }
+                },
+                c = maybe(&mut self.connecting) => {
+                    self.connecting = None;
+                    match c {
+                        Ok(client) => {
+                            self.on_connected(client);
+                            backoff = self.config.backoff_initial;
+                        }
+                        Err(e) => {
+                            self.stats.connect_failures += 1;
+                            tracing::warn!("{e}; retrying in {:.1} s", backoff.as_secs_f64());
+                            self.retry_at = Some(Instant::now() + backoff);
+                            backoff = (backoff * 2).min(self.config.backoff_max);
+                        }
+                    }
+                },
+                _ = at(self.retry_at), if self.connecting.is_none() && self.conn.is_none() => {
+                    self.retry_at = None;
+                    self.connecting = Some(self.connect());
+                },
+                _ = at(timeout) => self.core.handle_timeout(Stamp::now()),
+                _ = tick.tick() => {
+                    self.core.handle_timeout(Stamp::now());
+                    self.heartbeat().await;
+                },
+            }
+        }
+        self.flush_outputs().await;
+        self.stats.with_core(self.core.stats())
+    }
+
+    fn connect(&self) -> Connecting {
+        let endpoint = self.config.endpoint.clone();
+        let hello = self.core.hello().clone();
+        let token = self.config.token.clone();
+        let timeout = self.config.connect_timeout;
+        Box::pin(async move { LinkClient::connect_with_timeout(&endpoint, &hello, token, timeout).await })
+    }
+
+    fn on_connected(&mut self, client: LinkClient) {
+        let w = client.welcome();
+        tracing::info!(
+            "connected to {} as {} ({}{})",
+            self.config.endpoint,
+            w.robot_id,
+            w.coordinator_version,
+            if w.resumed { ", resumed" } else { "" }
+        );
+        self.conn = Some(client);
+        self.stats.connects += 1;
+        self.stats.connected = true;
+        self.core.handle_coordinator(Stamp::now(), FromCoordinator::Connected);
+    }
+
+    fn take_coordinator_messages(&mut self) {
+        let Some(c) = self.conn.as_mut() else { return };
+        let now = Stamp::now();
+        if let Some(up_to_sequence) = c.acked() {
+            self.core.handle_coordinator(now, FromCoordinator::Ack { up_to_sequence });
+        }
+        while let Some(e) = c.try_event() {
+            self.core.handle_coordinator(now, FromCoordinator::Event(e));
+        }
+    }
+
+    async fn heartbeat(&mut self) {
+        if self.last_send.elapsed() < self.config.heartbeat_interval {
             return;
         }
-        let attempt = LinkClient::connect_with_timeout(
-            &config.endpoint,
-            &hello,
-            config.token.clone(),
-            config.connect_timeout,
-        );
-        let result = tokio::select! {
-            r = attempt => r,
-            _ = shutdown.changed() => return,
-        };
-        match result {
-            Err(e) => {
-                lock(&shared.stats).connect_failures += 1;
-                tracing::warn!("{e}; retrying in {:.1} s", backoff.as_secs_f64());
-            }
-            Ok(client) => {
-                let w = client.welcome();
-                tracing::info!(
-                    "connected to {} as {} ({}{})",
-                    config.endpoint,
-                    w.robot_id,
-                    w.coordinator_version,
-                    if w.resumed { ", resumed" } else { "" }
-                );
-                backoff = config.backoff_initial;
-                lock(&shared.buffer).restart();
-                {
-                    let mut s = lock(&shared.stats);
-                    s.connects += 1;
-                    s.connected = true;
+        if let Some(c) = self.conn.as_mut() {
+            match c.send_heartbeat(Stamp::now()).await {
+                Ok(()) => {
+                    self.stats.heartbeats += 1;
+                    self.last_send = Instant::now();
                 }
-                let end =
-                    session(&shared, &config, client, navigator.as_mut(), &mut shutdown, &mut highest_sent)
-                        .await;
-                lock(&shared.stats).connected = false;
-                match end {
-                    Ok(()) => return,
-                    Err(e) => tracing::warn!("{e}; reconnecting in {:.1} s", backoff.as_secs_f64()),
-                }
+                Err(e) => self.lost(e),
             }
         }
-        tokio::select! {
-            _ = tokio::time::sleep(backoff) => {}
-            _ = shutdown.changed() => return,
+    }
+
+    fn lost(&mut self, e: AgentError) {
+        tracing::warn!("{e}; reconnecting");
+        self.conn = None;
+        self.stats.connected = false;
+        self.retry_at = Some(Instant::now() + self.config.backoff_initial);
+    }
+
+    /// Navigator exchange, events to the log, and everything the core has to send.
+    async fn flush_outputs(&mut self) {
+        let now = Stamp::now();
+        self.core.exchange_with(self.navigator.as_mut(), now);
+        while let Some(e) = self.core.poll_event() {
+            log_event(&e);
         }
-        backoff = (backoff * 2).min(config.backoff_max);
+        if let Err(e) = self.send_all().await {
+            self.lost(e);
+        }
+        let stats = self.stats.with_core(self.core.stats());
+        *lock(&self.shared.stats) = stats;
+        let idle = self.core.all_acknowledged();
+        self.shared.idle.send_if_modified(|i| std::mem::replace(i, idle) != idle);
+    }
+
+    async fn send_all(&mut self) -> Result<(), AgentError> {
+        let Some(c) = self.conn.as_mut() else { return Ok(()) };
+        while let Some(obs) = self.core.poll_observation() {
+            c.send_sequenced_observation(obs).await?;
+            self.last_send = Instant::now();
+        }
+        while let Some(r) = self.core.poll_reply() {
+            match r {
+                Reply::Ack(a) => c.send_command_ack(&a).await?,
+                Reply::Progress(p) => c.send_command_progress(&p).await?,
+            }
+            self.last_send = Instant::now();
+        }
+        Ok(())
     }
 }
 
-/// Runs one stream until it fails (`Err`) or the link shuts down (`Ok`).
-async fn session(
-    shared: &Shared,
-    config: &LinkConfig,
-    mut client: LinkClient,
-    navigator: &mut dyn Navigator,
-    shutdown: &mut watch::Receiver<bool>,
-    highest_sent: &mut u64,
-) -> Result<(), AgentError> {
-    let tick_period =
-        (config.heartbeat_interval / 2).clamp(Duration::from_millis(10), Duration::from_millis(100));
-    let mut tick = tokio::time::interval(tick_period);
-    tick.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Skip);
-    let mut last_send = Instant::now();
-    let mut progress = Vec::new();
-    loop {
-        // Everything not yet sent on this stream, oldest first.
-        loop {
-            let next = lock(&shared.buffer).next_unsent().cloned();
-            let Some(obs) = next else { break };
-            let seq = client.send_sequenced_observation(obs).await?;
-            lock(&shared.buffer).mark_sent(seq);
-            let mut s = lock(&shared.stats);
-            if seq <= *highest_sent {
-                s.resent += 1;
-            } else {
-                s.sent += 1;
-                *highest_sent = seq;
-            }
-            last_send = Instant::now();
-        }
-        let pose = lock(&shared.pose).take();
-        if let Some(p) = pose {
-            navigator.observe_pose(&p);
-        }
-        navigator.poll_progress(Stamp::now(), &mut progress);
-        for p in progress.drain(..) {
-            client.send_command_progress(&p).await?;
-            last_send = Instant::now();
-        }
+async fn recv_pose(poses: &mut Option<mpsc::Receiver<StampedPose>>) -> Option<StampedPose> {
+    match poses {
+        Some(rx) => rx.recv().await,
+        None => std::future::pending().await,
+    }
+}
 
-        tokio::select! {
-            _ = shutdown.changed() => return Ok(()),
-            r = client.receive() => r?,
-            _ = shared.wake.notified() => {}
-            _ = tick.tick() => {
-                if last_send.elapsed() >= config.heartbeat_interval {
-                    client.send_heartbeat(Stamp::now()).await?;
-                    lock(&shared.stats).heartbeats += 1;
-                    last_send = Instant::now();
-                }
-            }
+fn log_event(e: &AgentEvent) {
+    match e {
+        AgentEvent::HopWithoutPose { stamp, reason } => {
+            tracing::warn!("DoA hop at {stamp} dropped: {reason}")
         }
-
-        if let Some(up_to) = client.acked() {
-            let n = lock(&shared.buffer).ack(up_to);
-            lock(&shared.stats).acked += n as u64;
-        }
-        while let Some(event) = client.try_event() {
-            match event {
-                CoordinatorEvent::Reposition(cmd) => {
-                    lock(&shared.stats).commands += 1;
-                    let ack = navigator.submit(&cmd, Stamp::now());
-                    tracing::info!(
-                        "reposition command {} {}",
-                        cmd.command_id,
-                        if ack.accepted { "accepted".to_owned() } else { format!("refused: {}", ack.reason) }
-                    );
-                    client.send_command_ack(&ack).await?;
-                    last_send = Instant::now();
-                }
-                CoordinatorEvent::InvalidReposition { command_id, error } => {
-                    lock(&shared.stats).commands += 1;
-                    let ack = CommandAck {
-                        command_id,
-                        accepted: false,
-                        reason: format!("invalid command: {error}"),
-                    };
-                    client.send_command_ack(&ack).await?;
-                    last_send = Instant::now();
-                }
-                CoordinatorEvent::Cancel { command_id, reason } => {
-                    navigator.cancel(command_id, &reason, Stamp::now())
-                }
-                CoordinatorEvent::StreamError(_) => lock(&shared.stats).stream_errors += 1,
-            }
+        AgentEvent::Ignored(why) => tracing::warn!("{why}"),
+        AgentEvent::StreamError(_) => {} // logged by the client with its field
+        AgentEvent::CommandRefused { command_id, reason } => {
+            tracing::info!("reposition command {command_id} refused: {reason}")
         }
     }
 }

@@ -99,6 +99,12 @@ impl<T> Attacher<T> {
         }
     }
 
+    /// When the oldest waiting frame stops waiting for its pose (its stamp plus
+    /// the maximum wait); `None` when nothing waits.
+    pub fn next_deadline(&self) -> Option<Stamp> {
+        self.pending.front().map(|(stamp, _)| stamp.plus_ns(self.max_wait_ns))
+    }
+
     /// The pose buffer.
     pub fn buffer(&self) -> &PoseBuffer {
         &self.buffer

@@ -14,7 +14,11 @@ pub mod rows;
 use std::path::PathBuf;
 
 use nalgebra::Point3;
-use soundmap_proto::{CommandAck, CommandProgress, Stamp};
+use soundmap_agent::agent::{Agent, FromCoordinator, Reply};
+use soundmap_agent::audio::stamp_of_frame;
+use soundmap_agent::navigator::Navigator as AgentNavigator;
+use soundmap_proto::RepositionCommand;
+use soundmap_proto::Stamp;
 
 use crate::acoustics::{
     Activity, RirConfig, Scene, ShoeboxRoom, SourceSignal, Waveform, direct_path_rms, noise_std_for_snr,
@@ -121,6 +125,7 @@ async fn run_async(scenario: &Scenario, options: &RunOptions) -> Result<RunRecor
                 seed,
                 BLOCK_LEN,
                 hop_s,
+                SIM_EPOCH,
             )
         })
         .collect::<Result<Vec<_>, _>>()?;
@@ -140,7 +145,7 @@ async fn run_async(scenario: &Scenario, options: &RunOptions) -> Result<RunRecor
         }
         None => None,
     };
-    let stamp_of = |sample: u64| SIM_EPOCH.plus_ns((sample as i128 * 1_000_000_000 / fs as i128) as i64);
+    let stamp_of = |sample: u64| stamp_of_frame(SIM_EPOCH, sample, fs);
     let t_of = |stamp: Stamp| stamp.seconds_since(SIM_EPOCH);
     let blocks = (scenario.duration_s * fs as f64 / BLOCK_LEN as f64).ceil() as u64;
     let bar = progress_bar(options.progress, blocks, &scenario.name);
@@ -155,46 +160,48 @@ async fn run_async(scenario: &Scenario, options: &RunOptions) -> Result<RunRecor
         for h in 0..hops_per_block {
             let now_s = (first + (h * hop) as u64) as f64 / fs as f64;
             for r in robots.iter_mut() {
-                r.step(now_s);
+                r.step(now_s)?;
             }
             if options.record_dir.is_some() {
                 let t = stamp_of(first + (h * hop) as u64);
                 source_truth.push((t - SIM_EPOCH, scenario.sources[0].position_at(t_of(t))));
             }
         }
+        for (i, r) in robots.iter_mut().enumerate() {
+            let poses = r.take_published_poses();
+            if let Some(rec) = recorders.as_mut() {
+                for p in &poses {
+                    rec[i].pose(p.stamp, SIM_EPOCH, &p.map_from_base)?;
+                }
+            }
+        }
         let end_s = (first + BLOCK_LEN as u64) as f64 / fs as f64;
         let sources: Vec<Point3<f64>> = scenario.sources.iter().map(|s| s.position_at(end_s)).collect();
         hear_all(&mut robots, &sources, first, &stamp_of, recorders.as_mut())?;
-        fleet.set_time(stamp_of(first + BLOCK_LEN as u64));
+        let now = stamp_of(first + BLOCK_LEN as u64);
+        fleet.set_time(now);
         for h in 0..hops_per_block {
             for i in 0..robots.len() {
-                let hop_doas = robots[i].hops[h].clone();
-                let obs = robots[i].observation(&hop_doas, t_of(hop_doas.stamp))?;
-                if let Some(rec) = recorders.as_mut() {
-                    rec[i].pose(obs.stamp, SIM_EPOCH, &obs.map_from_base)?;
-                }
-                for event in fleet.observe(i, obs).await? {
-                    if let CoordinatorEvent::Reposition(cmd) = &event {
-                        commands.push((t_of(hop_doas.stamp), robots[i].id.to_string(), cmd.detail.clone()));
+                let hop = robots[i].hops[h].clone();
+                let r = &mut robots[i];
+                r.core.handle_hop(now, hop.stamp, hop.doas);
+                let seen = exchange(&mut fleet, &mut r.core, &mut r.navigator, i, now).await?;
+                for (stamp, cmd) in &seen.commands {
+                    let t_s = t_of(*stamp);
+                    commands.push((t_s, r.id.to_string(), cmd.detail.clone()));
+                    if seen.accepted.contains(&cmd.command_id) {
+                        let g = cmd.goal_map_from_base.translation.vector;
+                        paths[i].goals.push((t_s, g.x, g.y));
                     }
-                    handle_event(&mut fleet, &mut robots, &mut paths, i, event, t_of(hop_doas.stamp)).await?;
                 }
                 for e in fleet.drain_estimates()? {
                     rows.push(&e, &robots);
                 }
             }
         }
-        for i in 0..robots.len() {
-            if let Some(p) = robots[i].progress_to_report() {
-                let progress = CommandProgress {
-                    command_id: p.goal_id,
-                    state: p.state,
-                    // The navigator reports NaN until its first step: unknown.
-                    distance_remaining_m: Some(p.distance_remaining_m).filter(|d| d.is_finite()),
-                    detail: String::new(),
-                };
-                fleet.command_progress(i, &progress).await?;
-            }
+        for (i, r) in robots.iter_mut().enumerate() {
+            r.exchange_with_navigator(now);
+            send_replies(&mut fleet, &mut r.core, i).await?;
         }
         if b % 12 == 0 {
             for (r, path) in robots.iter().zip(paths.iter_mut()) {
@@ -306,39 +313,70 @@ fn hear_all(
     Ok(())
 }
 
-/// Hands a coordinator message to a robot.
-async fn handle_event(
+/// What one [`exchange`] saw: the commands received (with the stamp of the
+/// observation that caused them) and the ids of those the navigator accepted.
+#[derive(Debug, Default)]
+pub(crate) struct Exchanged {
+    pub commands: Vec<(Stamp, RepositionCommand)>,
+    pub accepted: Vec<u64>,
+}
+
+/// Sends robot `i`'s observations in lockstep (each acknowledged before the
+/// next), hands the coordinator's messages to its core, lets its navigator
+/// answer, and sends the replies: the one way the simulator and the replay
+/// drive an agent core against the coordinator.
+pub(crate) async fn exchange(
     fleet: &mut Fleet,
-    robots: &mut [SimRobot],
-    paths: &mut [RobotPath],
+    core: &mut Agent,
+    navigator: &mut dyn AgentNavigator,
     i: usize,
-    event: CoordinatorEvent,
-    t_s: f64,
-) -> Result<(), SimError> {
-    match event {
-        CoordinatorEvent::Reposition(cmd) => {
-            let deadline_s = cmd.deadline.seconds_since(SIM_EPOCH);
-            let answer = robots[i].command(cmd.command_id, &cmd.goal_map_from_base, deadline_s);
-            if answer.is_ok() {
-                let g = cmd.goal_map_from_base.translation.vector;
-                paths[i].goals.push((t_s, g.x, g.y));
+    now: Stamp,
+) -> Result<Exchanged, SimError> {
+    let mut seen = Exchanged::default();
+    while let Some(obs) = core.poll_observation() {
+        let (stamp, seq) = (obs.stamp, obs.sequence);
+        let events = fleet.observe(i, obs).await?;
+        core.handle_coordinator(now, FromCoordinator::Ack { up_to_sequence: seq });
+        for event in events {
+            match &event {
+                CoordinatorEvent::Reposition(cmd) => seen.commands.push((stamp, cmd.clone())),
+                CoordinatorEvent::StreamError(e) => {
+                    return Err(SimError::Coordinator(format!(
+                        "robot {} got a stream error: {}: {}",
+                        core.robot_id(),
+                        e.field,
+                        e.message
+                    )));
+                }
+                _ => {}
             }
-            let ack = CommandAck {
-                command_id: cmd.command_id,
-                accepted: answer.is_ok(),
-                reason: answer.err().unwrap_or_default(),
-            };
-            fleet.command_ack(i, &ack).await
+            core.handle_coordinator(now, FromCoordinator::Event(event));
         }
-        CoordinatorEvent::InvalidReposition { command_id, error } => {
-            let ack = CommandAck { command_id, accepted: false, reason: error.to_string() };
-            fleet.command_ack(i, &ack).await
-        }
-        CoordinatorEvent::Cancel { .. } => Ok(()),
-        CoordinatorEvent::StreamError(e) => {
-            Err(SimError::Coordinator(format!("robot {} got a stream error: {}", robots[i].id, e.message)))
+        core.exchange_with(navigator, now);
+        seen.accepted.extend(send_replies(fleet, core, i).await?);
+    }
+    Ok(seen)
+}
+
+/// Sends robot `i`'s command replies; returns the ids of the commands it accepted.
+pub(crate) async fn send_replies(
+    fleet: &mut Fleet,
+    core: &mut Agent,
+    i: usize,
+) -> Result<Vec<u64>, SimError> {
+    let mut accepted = Vec::new();
+    while let Some(reply) = core.poll_reply() {
+        match reply {
+            Reply::Ack(a) => {
+                if a.accepted {
+                    accepted.push(a.command_id);
+                }
+                fleet.command_ack(i, &a).await?;
+            }
+            Reply::Progress(p) => fleet.command_progress(i, &p).await?,
         }
     }
+    Ok(accepted)
 }
 
 /// Applies the scenario's active-positioning settings to the coordinator's

@@ -1,13 +1,23 @@
 //! A simulated robot: its base moves (preset waypoints or commanded goals),
 //! its array hears the room, its agent pipeline turns the audio into tracked
-//! DoAs, and SLAM reports a noisy pose.
+//! DoAs, and SLAM reports a noisy pose after every hop.
+//!
+//! What the robot tells the coordinator comes from the same agent core as a
+//! live robot's ([`soundmap_agent::agent::Agent`]): hops and SLAM poses go in,
+//! observations (pose interpolated at the DoA stamp, silence filtered,
+//! sequenced) and command replies come out. Its navigator is the simulated
+//! drive, behind the agent's [`Navigator`](AgentNavigator) trait.
 
 use std::collections::VecDeque;
 
 use nalgebra::{Isometry3, Matrix6, Point3};
+use soundmap_agent::agent::{self, Agent, CoreConfig};
 use soundmap_agent::array::ArrayGeometry;
+use soundmap_agent::link::Hop;
+use soundmap_agent::navigator::Navigator as AgentNavigator;
 use soundmap_agent::pipeline::{Pipeline, PipelineConfig};
-use soundmap_proto::{ArrayInfo, CommandState, Hello, Observation, RobotId, Stamp, TrackedDoa};
+use soundmap_agent::pose::{PoseBufferConfig, StampedPose};
+use soundmap_proto::{CommandAck, CommandProgress, CommandState, Hello, RepositionCommand, RobotId, Stamp};
 
 use crate::acoustics::{ArrayConfig, ArrayRenderer, DiffuseNoiseConfig, Scene};
 use crate::error::SimError;
@@ -27,13 +37,76 @@ enum Driver {
     Commanded(Navigator),
 }
 
-/// DoAs of one hop, before the pose is attached.
-#[derive(Clone, Debug)]
-pub struct HopDoas {
-    /// DoA stamp (mid-frame).
-    pub stamp: Stamp,
-    /// Confirmed tracks.
-    pub doas: Vec<TrackedDoa>,
+/// The simulated drive as the agent core's navigator: goals from the
+/// coordinator go to the commanded navigator (a robot on a preset trajectory
+/// refuses them); progress is reported on a new state or every 0.25 m.
+#[derive(Debug)]
+pub struct SimNavigator {
+    driver: Driver,
+    epoch: Stamp,
+    last_progress: Option<(u64, CommandState, f64)>,
+    pending: Vec<CommandProgress>,
+}
+
+impl SimNavigator {
+    fn report(&mut self, p: NavProgress) {
+        self.last_progress = Some((p.goal_id, p.state, p.distance_remaining_m));
+        self.pending.push(CommandProgress {
+            command_id: p.goal_id,
+            state: p.state,
+            distance_remaining_m: Some(p.distance_remaining_m).filter(|d| d.is_finite()),
+            detail: String::new(),
+        });
+    }
+}
+
+impl AgentNavigator for SimNavigator {
+    fn submit(&mut self, c: &RepositionCommand, _now: Stamp) -> CommandAck {
+        let answer = |r: Result<(), String>| CommandAck {
+            command_id: c.command_id,
+            accepted: r.is_ok(),
+            reason: r.err().unwrap_or_default(),
+        };
+        let deadline_s = (c.deadline.as_ns() != 0).then(|| c.deadline.seconds_since(self.epoch));
+        match &mut self.driver {
+            Driver::Trajectory(_) => answer(Err("this robot follows a preset trajectory".into())),
+            Driver::Commanded(nav) => match nav.set_goal(c.command_id, &c.goal_map_from_base, deadline_s) {
+                Ok(replaced) => {
+                    if let Some(p) = replaced {
+                        self.report(p);
+                    }
+                    answer(Ok(()))
+                }
+                Err(e) => answer(Err(e.to_string())),
+            },
+        }
+    }
+
+    fn cancel(&mut self, command_id: u64, _reason: &str, _now: Stamp) {
+        if let Driver::Commanded(nav) = &mut self.driver
+            && nav.progress().is_some_and(|p| p.goal_id == command_id && p.state == CommandState::Executing)
+            && let Some(p) = nav.cancel()
+        {
+            self.report(p);
+        }
+    }
+
+    fn poll_progress(&mut self, _now: Stamp, out: &mut Vec<CommandProgress>) {
+        if let Driver::Commanded(nav) = &self.driver
+            && let Some(p) = nav.progress()
+        {
+            let due = match self.last_progress {
+                Some((id, state, d)) => {
+                    id != p.goal_id || state != p.state || (d - p.distance_remaining_m).abs() >= 0.25
+                }
+                None => true,
+            };
+            if due {
+                self.report(p);
+            }
+        }
+        out.append(&mut self.pending);
+    }
 }
 
 /// A simulated robot.
@@ -46,9 +119,13 @@ pub struct SimRobot {
     pipeline: Pipeline,
     renderer: ArrayRenderer,
     drive: DiffDriveRobot,
-    driver: Driver,
+    /// The simulated drive, as the core's navigator.
+    pub navigator: SimNavigator,
+    /// The agent core: what the robot sends.
+    pub core: Agent,
     slam: SlamNoise,
     pose_covariance: Matrix6<f64>,
+    epoch: Stamp,
     /// True base poses at hop boundaries: (time since start (s), pose).
     history: VecDeque<(f64, Pose2)>,
     /// Planar audio of the current block.
@@ -56,8 +133,9 @@ pub struct SimRobot {
     /// One interleaved hop.
     hop: Vec<f32>,
     /// Results of the current block's hops.
-    pub hops: Vec<HopDoas>,
-    last_progress: Option<(u64, CommandState, f64)>,
+    pub hops: Vec<Hop>,
+    /// SLAM poses published since the last [`SimRobot::take_published_poses`].
+    published: Vec<StampedPose>,
 }
 
 /// Total 1-σ pose error of a SLAM model: white and drift parts combined (m, rad).
@@ -88,6 +166,7 @@ impl SimRobot {
         seed: u64,
         block_len: usize,
         hop_s: f64,
+        epoch: Stamp,
     ) -> Result<Self, SimError> {
         let array = ArrayGeometry::load(&spec.array).map_err(|e| SimError::Agent(e.to_string()))?;
         let pipeline = Pipeline::new(&array, pipeline_config).map_err(|e| SimError::Agent(e.to_string()))?;
@@ -129,46 +208,51 @@ impl SimRobot {
         };
         let (pos_std, yaw_std) = slam_pose_std(slam);
         let channels = array.channels();
-        Ok(SimRobot {
-            id: RobotId::parse(&spec.id, "robots.id").map_err(|e| SimError::Agent(e.to_string()))?,
+        let id = RobotId::parse(&spec.id, "robots.id")?;
+        let hello =
+            agent::hello(id.clone(), &array, concat!("soundmap-sim ", env!("CARGO_PKG_VERSION")).into());
+        let core_config = CoreConfig {
+            doa_sigma_floor_rad: pipeline.doa_sigma_floor_rad(),
+            pose_buffer: PoseBufferConfig { capacity: 4096, ..PoseBufferConfig::default() },
+            ..CoreConfig::default()
+        };
+        let core = Agent::new(hello, core_config, &format!("robot {id}: SLAM poses"))?;
+        let mut robot = SimRobot {
+            id,
             array,
             pipeline,
             renderer,
             drive,
-            driver,
+            navigator: SimNavigator { driver, epoch, last_progress: None, pending: Vec::new() },
+            core,
             slam: SlamNoise::new(slam_config, robot_seed ^ 0x5EED)?,
             pose_covariance: pose_covariance(pos_std, yaw_std),
+            epoch,
             history: VecDeque::from([(0.0, start)]),
             block: vec![0.0; channels * block_len],
             hop: Vec::new(),
             hops: Vec::new(),
-            last_progress: None,
-        })
+            published: Vec::new(),
+        };
+        robot.publish_pose(0.0)?;
+        Ok(robot)
     }
 
     /// The hello its agent sends.
     pub fn hello(&self) -> Hello {
-        Hello {
-            robot_id: self.id.clone(),
-            array: ArrayInfo {
-                base_from_array: self.array.base_from_array,
-                microphone_count: self.array.channels() as u32,
-                preset: Some(self.array.name.clone()),
-                microphone_positions: self.array.positions().collect(),
-            },
-            software_version: concat!("soundmap-sim ", env!("CARGO_PKG_VERSION")).into(),
-        }
+        self.core.hello().clone()
     }
 
     /// Whether the coordinator may command it.
     pub fn is_commanded(&self) -> bool {
-        matches!(self.driver, Driver::Commanded(_))
+        matches!(self.navigator.driver, Driver::Commanded(_))
     }
 
-    /// Advances the base by one hop (time `now_s` at the hop's start).
-    pub fn step(&mut self, now_s: f64) {
+    /// Advances the base by one hop (time `now_s` at the hop's start); SLAM
+    /// then reports the pose at the hop's end to the agent core.
+    pub fn step(&mut self, now_s: f64) -> Result<(), SimError> {
         let pose = self.drive.pose();
-        let twist = match &mut self.driver {
+        let twist = match &mut self.navigator.driver {
             Driver::Trajectory(f) => f.command(now_s, &pose, self.drive.limits()).0,
             Driver::Commanded(nav) => nav.step(now_s, &pose, &self.drive.twist(), self.drive.limits()).0,
         };
@@ -178,6 +262,28 @@ impl SimRobot {
         while self.history.len() > 4096 {
             self.history.pop_front();
         }
+        self.publish_pose(t)
+    }
+
+    /// SLAM's (noisy) pose at `t_s` since the start, handed to the core.
+    fn publish_pose(&mut self, t_s: f64) -> Result<(), SimError> {
+        let truth = self.pose_at(t_s).map_from_base();
+        let map_from_base = self.slam.observe(t_s, &truth)?;
+        let stamp = self.epoch.plus_secs(t_s);
+        let pose = StampedPose { stamp, map_from_base, covariance: Some(self.pose_covariance) };
+        self.core.handle_pose(stamp, pose.clone())?;
+        self.published.push(pose);
+        Ok(())
+    }
+
+    /// The SLAM poses published since the last call (what a recording keeps).
+    pub fn take_published_poses(&mut self) -> Vec<StampedPose> {
+        std::mem::take(&mut self.published)
+    }
+
+    /// The newest SLAM pose the core holds.
+    pub fn slam_pose(&self) -> Option<&StampedPose> {
+        self.core.poses().last()
     }
 
     /// True base pose at `t_s` (linear in position, shortest arc in yaw).
@@ -234,55 +340,15 @@ impl SimRobot {
                 }
             }
             on_audio(&self.hop);
-            let sigma_floor = self.pipeline.doa_sigma_floor_rad();
             let r = self.pipeline.process_hop(stamp_of(first_sample + (h * hop_len) as u64), &self.hop);
-            let doas = r.confirmed_doas(sigma_floor);
-            self.hops.push(HopDoas { stamp: r.stamp, doas });
+            self.hops.push(Hop { stamp: r.stamp, doas: r.confirmed_doas() });
         }
         Ok(())
     }
 
-    /// The observation the agent sends for hop results `hop`: the SLAM pose
-    /// at the DoA stamp (`t_s` since the start), with its covariance.
-    pub fn observation(&mut self, hop: &HopDoas, t_s: f64) -> Result<Observation, SimError> {
-        let truth = self.pose_at(t_s).map_from_base();
-        let map_from_base = self.slam.observe(t_s, &truth)?;
-        Ok(Observation {
-            sequence: 0,
-            stamp: hop.stamp,
-            map_from_base,
-            pose_covariance: Some(self.pose_covariance),
-            doas: hop.doas.clone(),
-        })
-    }
-
-    /// Takes a goal from the coordinator; `Err(reason)` when it cannot.
-    pub fn command(&mut self, id: u64, goal: &Isometry3<f64>, deadline_s: f64) -> Result<(), String> {
-        match &mut self.driver {
-            Driver::Trajectory(_) => Err("this robot follows a preset trajectory".into()),
-            Driver::Commanded(nav) => {
-                nav.set_goal(id, goal, Some(deadline_s)).map(|_| ()).map_err(|e| e.to_string())
-            }
-        }
-    }
-
-    /// The commanded goal's progress when it is worth reporting: a new state,
-    /// or 0.25 m more progress since the last report.
-    pub fn progress_to_report(&mut self) -> Option<NavProgress> {
-        let Driver::Commanded(nav) = &self.driver else { return None };
-        let p = nav.progress()?;
-        let report = match self.last_progress {
-            Some((id, state, d)) => {
-                id != p.goal_id || state != p.state || (d - p.distance_remaining_m).abs() >= 0.25
-            }
-            None => true,
-        };
-        if report {
-            self.last_progress = Some((p.goal_id, p.state, p.distance_remaining_m));
-            Some(p)
-        } else {
-            None
-        }
+    /// Hands goals and poses to the simulated drive and its answers back to the core.
+    pub fn exchange_with_navigator(&mut self, now: Stamp) {
+        self.core.exchange_with(&mut self.navigator, now);
     }
 
     /// The (first) twist limit, for tests.

@@ -1,4 +1,4 @@
-//! The live link's bounded buffer of observations awaiting acknowledgement. Pure.
+//! The agent core's bounded buffer of observations awaiting acknowledgement. Pure.
 
 use std::collections::VecDeque;
 

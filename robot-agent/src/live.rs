@@ -1,0 +1,346 @@
+//! The live agent (`soundmap-agent run`): the shell around the
+//! [agent core](crate::agent).
+//!
+//! Everything that can fail on bad configuration is prepared first (files
+//! opened, sockets bound: [`LivePlan::prepare`]); then an audio thread reads
+//! (and, for files with `realtime`, paces) blocks, a DSP thread runs the
+//! pipeline, poses come from a TUM file (all given to the core up front) or a
+//! live JSON-lines feed, and the [`Link`] task drives the core, the stream to
+//! the coordinator and the navigator.
+
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::time::{Duration, Instant};
+
+use soundmap_proto::Stamp;
+use tokio::sync::mpsc;
+
+use crate::AgentError;
+use crate::agent::{self, Agent, CoreConfig};
+use crate::array::ArrayGeometry;
+use crate::audio::{self, AudioInput, AudioSource, BlockOptions};
+use crate::config::{AgentConfig, DoaSource, OdasInput, PoseSource};
+use crate::link::{Hop, Link, LinkInputs, LinkStats};
+use crate::navigator::JsonLinesNavigator;
+use crate::odas::{self, LiveStart, OdasTiming};
+use crate::pipeline::Pipeline;
+use crate::pose::{self, PoseTimeMapping, StampedPose};
+
+/// Blocks in the pool between the audio thread and the DSP thread (the bound of their channel).
+const AUDIO_BLOCKS: usize = 32;
+/// Hops queued toward the link task.
+const HOP_QUEUE: usize = 256;
+/// Longest wait for acknowledgements once the input has ended.
+const DRAIN_TIMEOUT: Duration = Duration::from_secs(10);
+
+/// Where hops will come from, prepared (files opened, sockets bound).
+enum HopPlan {
+    Own { source: Box<dyn AudioSource>, pipeline: Box<Pipeline>, realtime: bool },
+    OdasFile(Vec<odas::OdasFrame>),
+    OdasListen { listener: std::net::TcpListener, hop_len: u32, sample_rate_hz: u32, start: LiveStart },
+}
+
+/// Where poses will come from.
+enum PosePlan {
+    /// A whole trajectory, given to the core before anything starts.
+    Tum,
+    Tcp(std::net::TcpListener),
+    Stdin,
+}
+
+/// A live agent ready to run: its core, inputs and navigator.
+pub struct LivePlan {
+    config: AgentConfig,
+    core: Agent,
+    hops: HopPlan,
+    poses: PosePlan,
+    navigator: JsonLinesNavigator,
+}
+
+impl std::fmt::Debug for LivePlan {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("LivePlan").field("robot_id", &self.config.robot_id).finish_non_exhaustive()
+    }
+}
+
+fn named(cfg: &str, what: &str, e: AgentError) -> AgentError {
+    match e {
+        AgentError::InvalidParameter { field, message } => {
+            AgentError::Config { path: cfg.into(), field: format!("{what}.{field}"), message }
+        }
+        other => other,
+    }
+}
+
+impl LivePlan {
+    /// Loads the array, opens the inputs, binds the sockets and builds the core.
+    /// Errors name the configuration file and field.
+    pub fn prepare(config: AgentConfig) -> Result<Self, AgentError> {
+        let cfg_name = config.path.display().to_string();
+        let array = ArrayGeometry::load(&config.array).map_err(|e| AgentError::Config {
+            path: config.path.clone(),
+            field: "array".into(),
+            message: e.to_string(),
+        })?;
+        let robot_id = config.robot_id.clone();
+        let version = format!("soundmap-agent {}", env!("CARGO_PKG_VERSION"));
+        let hello = agent::hello(robot_id, &array, version);
+        let audio_start = Stamp::now();
+        let (hops, sigma_floor_deg) = plan_hops(&config, &array, audio_start, &cfg_name)?;
+        let mut core_config = CoreConfig {
+            pose_buffer: config.pose.buffer,
+            max_pose_wait_s: config.pose.max_wait_s,
+            buffer_capacity: config.link.buffer_capacity,
+            doa_sigma_floor_rad: sigma_floor_deg.to_radians(),
+            ..CoreConfig::default()
+        };
+        let (poses, trajectory) = match &config.pose.source {
+            PoseSource::Tum { path, start_s } => {
+                let origin = match &config.doa {
+                    DoaSource::Own { audio, .. } => audio.start.unwrap_or(audio_start),
+                    DoaSource::Odas(o) => o.start.unwrap_or(audio_start),
+                };
+                let mapping = start_s.map_or(PoseTimeMapping::UNIX, |s| PoseTimeMapping::new(s, origin));
+                (PosePlan::Tum, pose::read_tum(path, mapping)?)
+            }
+            PoseSource::JsonlTcp(addr) => {
+                (PosePlan::Tcp(bind(*addr, &format!("{cfg_name}: pose.listen"))?), vec![])
+            }
+            PoseSource::JsonlStdin => (PosePlan::Stdin, vec![]),
+        };
+        core_config.pose_buffer.capacity = core_config.pose_buffer.capacity.max(trajectory.len());
+        let mut core = Agent::new(hello, core_config, &format!("{cfg_name}: pose"))?;
+        if matches!(poses, PosePlan::Tum) {
+            core.handle_trajectory(Stamp::now(), trajectory)?;
+        }
+        let navigator =
+            JsonLinesNavigator::open(&config.navigator.path, config.navigator.arrival_tolerance_m)?;
+        Ok(LivePlan { config, core, hops, poses, navigator })
+    }
+
+    /// Runs the agent until its input ends (and everything is acknowledged) or
+    /// Ctrl-C; returns the link's counters.
+    pub fn run(self) -> Result<LinkStats, AgentError> {
+        let runtime = tokio::runtime::Builder::new_multi_thread()
+            .enable_all()
+            .build()
+            .map_err(|source| AgentError::Io { path: "<tokio runtime>".into(), source })?;
+        let result = runtime.block_on(self.run_async());
+        // A read of standard input blocked in tokio's blocking pool must not hold the exit.
+        runtime.shutdown_timeout(Duration::from_millis(200));
+        result
+    }
+
+    async fn run_async(self) -> Result<LinkStats, AgentError> {
+        let stop = Arc::new(AtomicBool::new(false));
+        let (hops_tx, hops_rx) = mpsc::channel::<Hop>(HOP_QUEUE);
+        let threads = start_hops(self.hops, hops_tx, stop.clone())?;
+        let poses_rx = start_poses(self.poses)?;
+        let inputs = LinkInputs { hops: hops_rx, poses: poses_rx };
+        let (link, task) =
+            Link::spawn(self.config.link.clone(), self.core, Box::new(self.navigator), inputs, DRAIN_TIMEOUT);
+        let stats = tokio::select! {
+            r = task => r.map_err(|e| AgentError::Link(format!("the link task failed: {e}")))?,
+            _ = tokio::signal::ctrl_c() => {
+                tracing::info!("interrupted");
+                link.shutdown();
+                link.stats()
+            }
+        };
+        stop.store(true, Ordering::SeqCst);
+        tracing::info!(
+            "sent {} observations ({} resent, {} acknowledged, {} dropped by the link, {} hops without a pose), \
+             {} stream errors, {} commands",
+            stats.sent,
+            stats.resent,
+            stats.acked,
+            stats.dropped,
+            stats.hops_without_pose,
+            stats.stream_errors,
+            stats.commands
+        );
+        if let Some((reader, dsp)) = threads {
+            dsp.join().map_err(|_| AgentError::Link("the DSP thread panicked".into()))?;
+            reader.join().map_err(|_| AgentError::Link("the audio thread panicked".into()))??;
+        }
+        Ok(stats)
+    }
+}
+
+fn plan_hops(
+    config: &AgentConfig,
+    array: &ArrayGeometry,
+    audio_start: Stamp,
+    cfg_name: &str,
+) -> Result<(HopPlan, f64), AgentError> {
+    Ok(match &config.doa {
+        DoaSource::Own { audio, pipeline } => {
+            let p = Pipeline::new(array, pipeline).map_err(|e| named(cfg_name, "pipeline", e))?;
+            let options = BlockOptions {
+                hop_len: p.hop_len(),
+                channels: array.channels(),
+                sample_rate_hz: p.sample_rate_hz(),
+                channel_map: audio.channel_map.clone(),
+                start: audio.start.unwrap_or(audio_start),
+            };
+            let source = audio::open(&audio.input, &options)?;
+            let file = matches!(audio.input, AudioInput::Wav { .. } | AudioInput::Raw { .. });
+            let floor = pipeline.doa_sigma_floor_deg;
+            (HopPlan::Own { source, pipeline: Box::new(p), realtime: file && audio.realtime }, floor)
+        }
+        DoaSource::Odas(o) => {
+            let floor = CoreConfig::default().doa_sigma_floor_rad.to_degrees();
+            match &o.input {
+                OdasInput::File(path) => {
+                    let timing = OdasTiming {
+                        hop_len: o.hop_len,
+                        sample_rate_hz: o.sample_rate_hz,
+                        start: o.start.unwrap_or(audio_start),
+                    };
+                    (HopPlan::OdasFile(odas::read_sst_file(path, &timing)?), floor)
+                }
+                OdasInput::Listen(addr) => (
+                    HopPlan::OdasListen {
+                        listener: bind(*addr, &format!("{cfg_name}: doa.listen"))?,
+                        hop_len: o.hop_len,
+                        sample_rate_hz: o.sample_rate_hz,
+                        start: o.start.map_or(LiveStart::AtFirstFrame, LiveStart::Fixed),
+                    },
+                    floor,
+                ),
+            }
+        }
+    })
+}
+
+fn bind(addr: std::net::SocketAddr, what: &str) -> Result<std::net::TcpListener, AgentError> {
+    let io = |source| AgentError::Io { path: format!("{what}: cannot listen on {addr}").into(), source };
+    let l = std::net::TcpListener::bind(addr).map_err(io)?;
+    l.set_nonblocking(true).map_err(io)?;
+    Ok(l)
+}
+
+type Threads = (std::thread::JoinHandle<Result<(), AgentError>>, std::thread::JoinHandle<()>);
+
+/// Starts whatever produces hops; returns the audio and DSP threads when there are some.
+fn start_hops(
+    plan: HopPlan,
+    out: mpsc::Sender<Hop>,
+    stop: Arc<AtomicBool>,
+) -> Result<Option<Threads>, AgentError> {
+    match plan {
+        HopPlan::Own { source, pipeline, realtime } => {
+            return Ok(Some(spawn_dsp(source, pipeline, realtime, out, stop)));
+        }
+        HopPlan::OdasFile(frames) => {
+            tokio::spawn(async move {
+                let (wall0, stamp0) = (Instant::now(), frames.first().map_or(Stamp::ZERO, |f| f.stamp));
+                for f in frames {
+                    tokio::time::sleep_until((wall0 + since(stamp0, f.stamp)).into()).await;
+                    if out.send(Hop { stamp: f.stamp, doas: f.doas }).await.is_err() {
+                        return;
+                    }
+                }
+            });
+        }
+        HopPlan::OdasListen { listener, hop_len, sample_rate_hz, start } => {
+            let listener = tokio::net::TcpListener::from_std(listener)
+                .map_err(|source| AgentError::Io { path: "doa.listen".into(), source })?;
+            let (odas_tx, mut odas_rx) = mpsc::channel(HOP_QUEUE);
+            tokio::spawn(async move {
+                if let Err(e) = odas::serve_tcp(listener, hop_len, sample_rate_hz, start, odas_tx).await {
+                    tracing::error!("{e}");
+                }
+            });
+            tokio::spawn(async move {
+                while let Some(f) = odas_rx.recv().await {
+                    if out.send(Hop { stamp: f.stamp, doas: f.doas }).await.is_err() {
+                        return;
+                    }
+                }
+            });
+        }
+    }
+    Ok(None)
+}
+
+/// Starts the live pose feed, if any.
+fn start_poses(plan: PosePlan) -> Result<Option<mpsc::Receiver<StampedPose>>, AgentError> {
+    let (tx, rx) = mpsc::channel::<StampedPose>(1024);
+    match plan {
+        PosePlan::Tum => return Ok(None),
+        PosePlan::Tcp(listener) => {
+            let listener = tokio::net::TcpListener::from_std(listener)
+                .map_err(|source| AgentError::Io { path: "pose.listen".into(), source })?;
+            tokio::spawn(pose::jsonl::serve_tcp(listener, tx));
+        }
+        PosePlan::Stdin => {
+            tokio::spawn(async move {
+                let stdin = tokio::io::BufReader::new(tokio::io::stdin());
+                if let Err(e) = pose::jsonl::read_feed(stdin, "pose feed -", &tx).await {
+                    tracing::error!("{e}");
+                }
+            });
+        }
+    }
+    Ok(Some(rx))
+}
+
+fn since(earlier: Stamp, later: Stamp) -> Duration {
+    Duration::from_nanos((later - earlier).max(0) as u64)
+}
+
+/// The audio thread reads (and, for files, paces) blocks; the DSP thread runs the
+/// pipeline and sends every hop's confirmed tracks to the link. Blocks circulate
+/// through a fixed pool, so nothing is allocated per block.
+fn spawn_dsp(
+    mut source: Box<dyn AudioSource>,
+    mut pipeline: Box<Pipeline>,
+    realtime: bool,
+    out: mpsc::Sender<Hop>,
+    stop: Arc<AtomicBool>,
+) -> Threads {
+    let n = source.hop_len() * source.channels();
+    let (full_tx, full_rx) = std::sync::mpsc::sync_channel::<(Stamp, Vec<f32>)>(AUDIO_BLOCKS);
+    let (free_tx, free_rx) = std::sync::mpsc::sync_channel::<Vec<f32>>(AUDIO_BLOCKS);
+    for _ in 0..AUDIO_BLOCKS {
+        let _ = free_tx.send(vec![0.0; n]);
+    }
+    let reader = std::thread::Builder::new()
+        .name("audio".into())
+        .spawn(move || {
+            let mut pace: Option<(Instant, Stamp)> = None;
+            while !stop.load(Ordering::SeqCst) {
+                let Ok(mut block) = free_rx.recv() else { break };
+                let Some(stamp) = source.next_block(&mut block).inspect_err(|e| tracing::error!("{e}"))?
+                else {
+                    tracing::info!("{}: end of audio", source.name());
+                    break;
+                };
+                if realtime {
+                    let (wall0, stamp0) = *pace.get_or_insert((Instant::now(), stamp));
+                    let due = wall0 + since(stamp0, stamp);
+                    std::thread::sleep(due.saturating_duration_since(Instant::now()));
+                }
+                if full_tx.send((stamp, block)).is_err() {
+                    break;
+                }
+            }
+            Ok(())
+        })
+        .expect("spawn the audio thread");
+    let dsp = std::thread::Builder::new()
+        .name("dsp".into())
+        .spawn(move || {
+            while let Ok((stamp, block)) = full_rx.recv() {
+                let r = pipeline.process_hop(stamp, &block);
+                let hop = Hop { stamp: r.stamp, doas: r.confirmed_doas() };
+                let _ = free_tx.send(block);
+                if out.blocking_send(hop).is_err() {
+                    break;
+                }
+            }
+        })
+        .expect("spawn the DSP thread");
+    (reader, dsp)
+}

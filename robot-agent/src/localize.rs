@@ -1,0 +1,94 @@
+//! `soundmap-agent localize`: the on-board pipeline on a recording, one JSON
+//! line per hop.
+//!
+//! `{"stamp_ns":…, "sources":[{"id","x","y","z","activity"}]}` with (x, y, z)
+//! the unit vector toward the source in the array frame (x forward, y left,
+//! z up); optionally the hop's SRP peaks as `"potentials":[{"x","y","z","energy"}]`.
+
+use std::io::Write;
+
+use serde::Serialize;
+
+use crate::AgentError;
+use crate::audio::AudioSource;
+use crate::pipeline::{FrameResult, Pipeline};
+
+#[derive(Serialize)]
+struct SourceLine {
+    id: u64,
+    x: f64,
+    y: f64,
+    z: f64,
+    activity: f64,
+}
+
+#[derive(Serialize)]
+struct PotentialLine {
+    x: f64,
+    y: f64,
+    z: f64,
+    energy: f64,
+}
+
+#[derive(Serialize)]
+struct HopLine {
+    stamp_ns: i64,
+    sources: Vec<SourceLine>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    potentials: Option<Vec<PotentialLine>>,
+}
+
+/// What each line holds.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct LineOptions {
+    /// Also write the hop's SRP peaks.
+    pub potentials: bool,
+    /// Also write tentative (unconfirmed) tracks.
+    pub all_tracks: bool,
+}
+
+/// Runs `pipeline` over every block of `source`, writing one line per hop to `out`.
+pub fn localize(
+    source: &mut dyn AudioSource,
+    pipeline: &mut Pipeline,
+    options: LineOptions,
+    out: &mut dyn Write,
+) -> Result<(), AgentError> {
+    let io = |source| AgentError::Io { path: "localize output".into(), source };
+    let mut block = vec![0.0f32; source.hop_len() * source.channels()];
+    while let Some(stamp) = source.next_block(&mut block)? {
+        let line = hop_line(pipeline.process_hop(stamp, &block), options);
+        serde_json::to_writer(&mut *out, &line).map_err(|e| io(e.into()))?;
+        out.write_all(b"\n").map_err(io)?;
+    }
+    out.flush().map_err(io)
+}
+
+fn hop_line(r: &FrameResult, options: LineOptions) -> HopLine {
+    HopLine {
+        stamp_ns: r.stamp.as_ns(),
+        sources: r
+            .tracks
+            .iter()
+            .filter(|t| options.all_tracks || t.confirmed)
+            .map(|t| SourceLine {
+                id: t.track_id,
+                x: t.direction.x,
+                y: t.direction.y,
+                z: t.direction.z,
+                activity: t.activity,
+            })
+            .collect(),
+        potentials: options.potentials.then(|| {
+            r.potentials
+                .iter()
+                .map(|p| PotentialLine {
+                    x: p.direction.x,
+                    y: p.direction.y,
+                    z: p.direction.z,
+                    energy: p.energy,
+                })
+                .collect()
+        }),
+    }
+}
