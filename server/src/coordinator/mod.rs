@@ -271,7 +271,7 @@ impl Coordinator {
             .collect::<Vec<_>>();
         entry.last_sequence = Some(obs.sequence);
         entry.last_stamp = Some(obs.stamp);
-        entry.last_pose = Some(obs.map_from_base);
+        entry.last_map_from_base = Some(obs.map_from_base);
         entry.accepted += 1;
         let stored = StoredObservation { stamp: obs.stamp, rays, received: now };
         let dominant = stored.dominant().copied();
@@ -433,6 +433,6 @@ impl Coordinator {
     /// Array centre of a robot in the map at its last pose.
     pub fn array_in_map(&self, id: &RobotId) -> Option<Point3<f64>> {
         let e = self.robots.get(id)?;
-        Some(e.last_pose? * e.hello.array.base_from_array * Point3::origin())
+        Some(e.last_map_from_base? * e.hello.array.base_from_array * Point3::origin())
     }
 }

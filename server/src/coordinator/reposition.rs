@@ -39,7 +39,7 @@ impl Coordinator {
             .filter_map(|(id, e)| {
                 Some(RobotState {
                     id: id.clone(),
-                    map_from_base: e.last_pose?,
+                    map_from_base: e.last_map_from_base?,
                     base_from_array: e.hello.array.base_from_array,
                     sigma_rad: e.last_sigma_rad.unwrap_or(default_sigma),
                     active_goal: e.commands.active_goal(now),

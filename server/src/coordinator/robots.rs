@@ -45,7 +45,7 @@ pub struct RobotEntry {
     /// Sequence of the last observation on the current stream.
     pub last_sequence: Option<u64>,
     /// Pose at the last accepted observation.
-    pub last_pose: Option<Isometry3<f64>>,
+    pub last_map_from_base: Option<Isometry3<f64>>,
     /// Angular σ of the dominant ray of its last observation with DoAs (rad).
     pub last_sigma_rad: Option<f64>,
     /// Recent observations, oldest first, stamps non-decreasing.
@@ -68,7 +68,7 @@ impl RobotEntry {
             last_seen: now,
             last_stamp: None,
             last_sequence: None,
-            last_pose: None,
+            last_map_from_base: None,
             last_sigma_rad: None,
             history: VecDeque::new(),
             accepted: 0,
@@ -84,7 +84,7 @@ impl RobotEntry {
             liveness,
             last_seen: self.last_seen,
             last_observation: self.last_stamp,
-            map_from_base: self.last_pose,
+            map_from_base: self.last_map_from_base,
             array: &self.hello.array,
             software_version: &self.hello.software_version,
             observations_accepted: self.accepted,
