@@ -135,6 +135,12 @@ pub struct OutputConfig {
     /// Append every estimate with a position to this JSON-lines file:
     /// `{"stamp_ns", "x", "y", "z", "cov", "gdop", "theta_deg", "robots", …}`.
     pub estimates_jsonl: Option<PathBuf>,
+    /// Append every observation the coordinator accepts to this JSON-lines file
+    /// (what the robots sent, for debugging a fleet and checking replays):
+    /// `{"robot_id", "sequence", "stamp_ns", "map_from_base": [x, y, z, qx, qy, qz, qw],
+    /// "doas": [{"track_id", "x", "y", "z", "activity", "angular_sigma_rad"}]}`
+    /// (metres; DoAs as unit vectors in the array frame; σ in rad or null).
+    pub observations_jsonl: Option<PathBuf>,
 }
 
 /// Robot authentication by bearer token (`authorization: Bearer TOKEN`).

@@ -25,6 +25,9 @@ struct Args {
     /// Append estimates to this JSON-lines file (overrides `output.estimates_jsonl`).
     #[arg(long, value_name = "FILE")]
     estimates_jsonl: Option<PathBuf>,
+    /// Append every accepted observation to this JSON-lines file (overrides `output.observations_jsonl`).
+    #[arg(long, value_name = "FILE")]
+    observations_jsonl: Option<PathBuf>,
     /// Check the configuration and exit.
     #[arg(long)]
     check: bool,
@@ -48,6 +51,9 @@ async fn main() -> anyhow::Result<()> {
     }
     if let Some(path) = args.estimates_jsonl {
         config.output.estimates_jsonl = Some(path);
+    }
+    if let Some(path) = args.observations_jsonl {
+        config.output.observations_jsonl = Some(path);
     }
     if args.check {
         println!("configuration OK");

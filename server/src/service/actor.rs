@@ -114,6 +114,8 @@ pub struct Actor {
     streams: HashMap<ConnId, Stream>,
     estimates: broadcast::Sender<Arc<wire::SourceEstimate>>,
     sink: Option<mpsc::UnboundedSender<Arc<wire::SourceEstimate>>>,
+    /// Lines of accepted observations (`output.observations_jsonl`).
+    observation_log: Option<mpsc::UnboundedSender<String>>,
     metrics: Arc<Metrics>,
     /// Receipt times of observations waiting for an estimate.
     receipts: Vec<Instant>,
@@ -142,10 +144,17 @@ impl Actor {
             streams: HashMap::new(),
             estimates,
             sink,
+            observation_log: None,
             metrics,
             receipts: Vec::new(),
             planner_logged: None,
         }
+    }
+
+    /// Also writes every accepted observation as a line to `log`.
+    pub fn with_observation_log(mut self, log: Option<mpsc::UnboundedSender<String>>) -> Self {
+        self.observation_log = log;
+        self
     }
 
     /// Runs on the calling thread until every request sender is gone or a
@@ -228,8 +237,17 @@ impl Actor {
             }
             Request::Observation { conn, obs, received } => {
                 let seq = obs.sequence;
+                let line = match (&self.observation_log, self.coordinator.robot_of(conn)) {
+                    (Some(_), Some(id)) => Some(super::sink::observation_line(id.as_str(), &obs)),
+                    _ => None,
+                };
                 match self.coordinator.observe(now, conn, obs) {
-                    Ok(()) => self.receipts.push(received),
+                    Ok(()) => {
+                        self.receipts.push(received);
+                        if let (Some(log), Some(line)) = (&self.observation_log, line) {
+                            let _ = log.send(line);
+                        }
+                    }
                     Err(e) => self.send(conn, to_stream_error(&e, seq)),
                 }
                 self.mark_ack(conn, seq);

@@ -50,6 +50,7 @@ pub struct RunningCoordinator {
     actor: Option<std::thread::JoinHandle<()>>,
     ticker: Option<JoinHandle<()>>,
     sink: Option<std::thread::JoinHandle<()>>,
+    observation_sink: Option<std::thread::JoinHandle<()>>,
 }
 
 impl RunningCoordinator {
@@ -80,6 +81,9 @@ impl RunningCoordinator {
         let _ = self.requests.send(actor::Request::Stop).await;
         if let Some(actor) = self.actor.take() {
             let _ = tokio::task::spawn_blocking(move || actor.join()).await;
+        }
+        if let Some(sink) = self.observation_sink.take() {
+            let _ = tokio::task::spawn_blocking(move || sink.join()).await;
         }
         if let Some(sink) = self.sink.take() {
             let _ = tokio::task::spawn_blocking(move || sink.join()).await;
@@ -129,6 +133,13 @@ pub async fn start(
         }
         None => (None, None),
     };
+    let (observations_tx, observation_sink) = match &config.output.observations_jsonl {
+        Some(path) => {
+            let (tx, handle) = sink::spawn_lines_sink(path.clone(), "observations-jsonl")?;
+            (Some(tx), Some(handle))
+        }
+        None => (None, None),
+    };
     let (stopping, stop_rx) = tokio::sync::watch::channel(false);
     let link = robot_link::RobotLinkService::new(&config, requests.clone(), clock.clone(), stop_rx.clone());
     let monitoring = monitoring::MonitoringService::new(requests.clone(), estimates.clone(), stop_rx.clone());
@@ -138,7 +149,8 @@ pub async fn start(
             Some(tokio::spawn(actor::Actor::ticker(requests.clone(), std::time::Duration::from_millis(ms))))
         }
     };
-    let actor = actor::Actor::new(coordinator, clock, estimates.clone(), sink_tx, metrics.clone());
+    let actor = actor::Actor::new(coordinator, clock, estimates.clone(), sink_tx, metrics.clone())
+        .with_observation_log(observations_tx);
     let actor = std::thread::Builder::new()
         .name("coordinator".into())
         .spawn(move || actor.run(requests_rx))
@@ -168,5 +180,6 @@ pub async fn start(
         actor: Some(actor),
         ticker,
         sink,
+        observation_sink,
     })
 }

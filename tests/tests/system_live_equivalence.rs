@@ -1,0 +1,157 @@
+//! The live agent and the replay send the coordinator the same stream.
+//!
+//! A simulated trial is recorded (WAV + TUM per robot). The same recording is
+//! then fed (1) through the live agent: the code `soundmap-agent run` runs
+//! ([`LivePlan`], here in-process, one per robot, each with its own agent
+//! config: WAV + TUM, real gRPC on loopback) against a real coordinator on the
+//! wall clock, and (2) through `soundmap-sim replay`. Both coordinators log
+//! every observation they accept (`output.observations_jsonl`); the two logs
+//! must hold the same observations per robot: same sequence numbers, stamps,
+//! poses, DoAs and silences.
+
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+
+use soundmap_agent::config::AgentConfig;
+use soundmap_agent::live::LivePlan;
+use soundmap_server::CoordinatorConfig;
+use soundmap_server::clock::SystemClock;
+use soundmap_sim::replay::{ReplayArgs, parse_robot, replay};
+use soundmap_sim::runner::{RunOptions, SIM_EPOCH, run};
+use soundmap_sim::scenario::Scenario;
+
+fn scratch(name: &str) -> PathBuf {
+    let dir = std::env::temp_dir().join(format!("soundmap-{name}-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).unwrap();
+    dir
+}
+
+/// Observation lines per robot, in the order the coordinator accepted them.
+fn observations_by_robot(path: &Path) -> BTreeMap<String, Vec<serde_json::Value>> {
+    let text = std::fs::read_to_string(path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+    let mut out: BTreeMap<String, Vec<serde_json::Value>> = BTreeMap::new();
+    for line in text.lines() {
+        let v: serde_json::Value = serde_json::from_str(line).unwrap();
+        let id = v["robot_id"].as_str().unwrap().to_owned();
+        out.entry(id).or_default().push(v);
+    }
+    out
+}
+
+fn agent_toml(id: &str, endpoint: &str, dir: &Path, array: &str) -> String {
+    format!(
+        r#"robot_id = "{id}"
+[coordinator]
+endpoint = "{endpoint}"
+[array]
+preset = "{array}"
+[doa]
+source = "own"
+[audio]
+source = "wav"
+path = "{dir}/{id}.wav"
+start_ns = {start}
+pace = "asap"
+[pose]
+source = "tum"
+path = "{dir}/{id}.tum"
+start_s = 0.0
+[navigator]
+path = "{dir}/{id}-goals.jsonl"
+arrival_tolerance_m = 0.25
+"#,
+        dir = dir.display(),
+        start = SIM_EPOCH.as_ns(),
+    )
+}
+
+#[test]
+fn live_agent_and_replay_send_the_same_observations() {
+    let mut scenario = Scenario::load("smoke").unwrap();
+    // The source pauses: the stream holds the end of a track and a silence.
+    scenario.sources[0].active = vec![[0.0, 1.8], [2.6, 4.0]];
+    let dir = scratch("live-equivalence");
+    let rec = dir.join("recording");
+    run(&scenario, &RunOptions { record_dir: Some(rec.clone()), ..RunOptions::default() }).unwrap();
+
+    // (2) soundmap-sim replay, with the coordinator logging what it accepts.
+    let replay_log = dir.join("replay-observations.jsonl");
+    let coordinator_toml = dir.join("coordinator.toml");
+    std::fs::write(
+        &coordinator_toml,
+        format!("[output]\nobservations_jsonl = \"{}\"\n", replay_log.display()),
+    )
+    .unwrap();
+    let robots: Vec<_> = scenario
+        .robots
+        .iter()
+        .map(|r| {
+            parse_robot(&format!(
+                "id={id},audio={d}/{id}.wav,poses={d}/{id}.tum,array={a}",
+                id = r.id,
+                d = rec.display(),
+                a = r.array
+            ))
+            .unwrap()
+        })
+        .collect();
+    let args = ReplayArgs {
+        robots,
+        truth: None,
+        out: dir.join("replay"),
+        coordinator_config: Some(coordinator_toml),
+        pipeline: None,
+        max_pose_gap_s: 0.5,
+    };
+    replay(&args).unwrap();
+
+    // (1) the live agents against a real coordinator on the wall clock.
+    let live_log = dir.join("live-observations.jsonl");
+    let runtime = tokio::runtime::Builder::new_multi_thread().worker_threads(2).enable_all().build().unwrap();
+    let mut config = CoordinatorConfig::default();
+    config.output.observations_jsonl = Some(live_log.clone());
+    let coordinator = runtime.block_on(async {
+        let listener = tokio::net::TcpListener::bind("127.0.0.1:0").await.unwrap();
+        soundmap_server::service::start(config, Arc::new(SystemClock), listener).await.unwrap()
+    });
+    let endpoint = format!("http://{}", coordinator.local_addr);
+    let agents: Vec<_> = scenario
+        .robots
+        .iter()
+        .map(|r| {
+            let path = dir.join(format!("{}.toml", r.id));
+            std::fs::write(&path, agent_toml(&r.id, &endpoint, &rec, &r.array)).unwrap();
+            std::thread::spawn(move || {
+                let config = AgentConfig::load(&path).unwrap_or_else(|e| panic!("{e}"));
+                LivePlan::prepare(config).unwrap().run().unwrap()
+            })
+        })
+        .collect();
+    for a in agents {
+        let stats = a.join().unwrap();
+        assert_eq!((stats.pending, stats.dropped), (0, 0), "{stats:?}");
+    }
+    runtime.block_on(coordinator.shutdown()).unwrap();
+
+    let live = observations_by_robot(&live_log);
+    let replayed = observations_by_robot(&replay_log);
+    assert_eq!(live.keys().collect::<Vec<_>>(), replayed.keys().collect::<Vec<_>>());
+    for (id, l) in &live {
+        let r = &replayed[id];
+        let empty = l.iter().filter(|o| o["doas"].as_array().unwrap().is_empty()).count();
+        println!(
+            "{id}: {} observations live, {} replayed, {empty} of them empty (end of a track)",
+            l.len(),
+            r.len()
+        );
+        assert!(l.len() > 100, "{id}: only {} observations", l.len());
+        assert!(empty > 0 && empty < l.len(), "{id}: silences are part of the stream");
+        assert_eq!(l.len(), r.len(), "{id}: observation counts differ");
+        for (a, b) in l.iter().zip(r) {
+            assert_eq!(a, b, "{id}: first difference");
+        }
+    }
+    let _ = std::fs::remove_dir_all(&dir);
+}
