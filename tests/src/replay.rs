@@ -28,11 +28,11 @@ use soundmap_agent::navigator::DecliningNavigator;
 use soundmap_agent::pipeline::{Pipeline, PipelineConfig};
 use soundmap_agent::pose::tum::{PoseTimeMapping, read_tum};
 use soundmap_agent::pose::{PoseBuffer, PoseBufferConfig, StampedPose};
-use soundmap_proto::{Hello, RobotId, Stamp};
+use soundmap_proto::{Hello, RobotId, Stamp, wire};
 use soundmap_server::CoordinatorConfig;
 
 use crate::error::SimError;
-use crate::report::{RobotPath, RunRecord};
+use crate::report::{RobotPath, RunRecord, TimelineRow};
 use crate::runner::fleet::Fleet;
 use crate::runner::robot::pose_covariance;
 use crate::runner::rows::row_of;
@@ -137,10 +137,129 @@ struct Replayed {
 }
 
 impl Replayed {
+    /// Runs the pipeline on the next hop, hands it to the core and exchanges
+    /// with the coordinator; returns the coordinator's clock for the hop: the
+    /// end of the simulator-sized block holding it.
+    async fn hop(&mut self, fleet: &mut Fleet, i: usize) -> Result<Stamp, SimError> {
+        let first = self.next.expect("a hop is left");
+        let result = self.pipeline.process_hop(first, &self.hop);
+        let (stamp, doas) = (result.stamp, result.confirmed_doas());
+        let block = BLOCK_LEN as u64;
+        let block_end = (self.samples_done / block + 1) * block;
+        self.samples_done += self.pipeline.hop_len() as u64;
+        let now = stamp_of_frame(self.start, block_end, self.pipeline.sample_rate_hz());
+        fleet.set_time(now);
+        self.core.handle_hop(now, stamp, doas);
+        exchange(fleet, &mut self.core, &mut self.navigator, i, now).await?;
+        Ok(now)
+    }
+
     fn advance(&mut self) -> Result<(), SimError> {
         self.next = self.audio.next_block(&mut self.hop).map_err(|e| SimError::Agent(e.to_string()))?;
         Ok(())
     }
+}
+
+impl Replayed {
+    /// Opens one robot's recording: its audio, its poses (given whole to a new
+    /// agent core), and its path for the map plot.
+    fn open(
+        r: &RobotRecording,
+        pipeline_config: &PipelineConfig,
+        max_pose_gap_s: f64,
+    ) -> Result<(Replayed, RobotPath), SimError> {
+        let array = ArrayGeometry::load(&r.array).map_err(agent)?;
+        let pipeline = Pipeline::new(&array, pipeline_config).map_err(agent)?;
+        let start = SIM_EPOCH.plus_secs(r.start_s);
+        let options = BlockOptions {
+            hop_len: pipeline.hop_len(),
+            channels: array.channels(),
+            sample_rate_hz: pipeline.sample_rate_hz(),
+            channel_map: None,
+            start,
+        };
+        let audio = audio::open(&AudioInput::Wav { path: r.audio.clone() }, &options).map_err(agent)?;
+        let list = read_tum(&r.poses, PoseTimeMapping::new(0.0, SIM_EPOCH))?;
+        if list.is_empty() {
+            return Err(SimError::Replay(format!("{}: no poses", r.poses.display())));
+        }
+        let poses = PoseBufferConfig {
+            capacity: list.len().max(2),
+            max_gap_s: max_pose_gap_s,
+            ..PoseBufferConfig::default()
+        };
+        let (first, last) = (list[0].stamp, list[list.len() - 1].stamp);
+        if first > start.plus_secs(24.0 * 3600.0) || last < start {
+            return Err(SimError::Replay(format!(
+                "{}: poses cover {:.3}–{:.3} s but the audio of {} starts at {:.3} s: the time ranges do not overlap",
+                r.poses.display(),
+                first.seconds_since(SIM_EPOCH),
+                last.seconds_since(SIM_EPOCH),
+                r.id,
+                r.start_s
+            )));
+        }
+        let path = RobotPath {
+            id: r.id.clone(),
+            samples: list
+                .iter()
+                .step_by((list.len() / 2000).max(1))
+                .map(|p| {
+                    let t = p.map_from_base.translation.vector;
+                    (p.stamp.seconds_since(SIM_EPOCH), t.x, t.y, p.map_from_base.rotation.euler_angles().2)
+                })
+                .collect(),
+            goals: vec![],
+        };
+        let covariance = match (r.pose_std_m, r.yaw_std_deg) {
+            (None, None) => None,
+            (p, y) => Some(pose_covariance(p.unwrap_or(0.0), y.unwrap_or(0.0).to_radians())),
+        };
+        let hop = vec![0.0; array.channels() * pipeline.hop_len()];
+        let id = RobotId::parse(&r.id, "id")?;
+        let version = concat!("soundmap-sim replay ", env!("CARGO_PKG_VERSION"));
+        let core_config = CoreConfig {
+            pose_buffer: poses,
+            doa_sigma_floor_rad: pipeline.doa_sigma_floor_rad(),
+            ..CoreConfig::default()
+        };
+        let mut core = Agent::new(
+            agent::hello(id.clone(), &array, version.into()),
+            core_config,
+            &r.poses.display().to_string(),
+        )?;
+        let trajectory = list.into_iter().map(|p| StampedPose { covariance, ..p }).collect();
+        core.handle_trajectory(start, trajectory)?;
+        let robot = Replayed {
+            id,
+            array,
+            pipeline,
+            audio,
+            core,
+            navigator: DecliningNavigator::new("replay: a recorded robot cannot move"),
+            hop,
+            next: None,
+            start,
+            samples_done: 0,
+        };
+        Ok((robot, path))
+    }
+}
+
+/// A timeline row for estimate `e`, scored against the truth when there is one.
+fn score(e: &wire::SourceEstimate, robots: &[Replayed], truth: Option<&PoseBuffer>) -> TimelineRow {
+    let at = Stamp::from_ns(e.stamp_ns);
+    let truth_at = truth.and_then(|b| b.lookup(at).ok()).map(|p| p.map_from_base.translation.vector.into());
+    let arrays: Vec<Point3<f64>> =
+        robots
+            .iter()
+            .map(|r| {
+                r.core.poses().lookup(at).ok().map_or_else(Point3::origin, |p| {
+                    p.map_from_base * r.array.base_from_array * Point3::origin()
+                })
+            })
+            .collect();
+    row_of(e, SIM_EPOCH, truth_at, if truth_at.is_some() { &arrays } else { &[] })
 }
 
 fn agent(e: impl std::fmt::Display) -> SimError {
@@ -185,80 +304,8 @@ async fn replay_async(args: &ReplayArgs) -> Result<RunRecord, SimError> {
         if robots.iter().any(|o: &Replayed| o.id.as_str() == r.id) {
             return Err(SimError::Replay(format!("robot {} given twice", r.id)));
         }
-        let array = ArrayGeometry::load(&r.array).map_err(agent)?;
-        let pipeline = Pipeline::new(&array, &pipeline_config).map_err(agent)?;
-        let start = SIM_EPOCH.plus_secs(r.start_s);
-        let options = BlockOptions {
-            hop_len: pipeline.hop_len(),
-            channels: array.channels(),
-            sample_rate_hz: pipeline.sample_rate_hz(),
-            channel_map: None,
-            start,
-        };
-        let audio = audio::open(&AudioInput::Wav { path: r.audio.clone() }, &options).map_err(agent)?;
-        let list = read_tum(&r.poses, PoseTimeMapping::new(0.0, SIM_EPOCH))?;
-        if list.is_empty() {
-            return Err(SimError::Replay(format!("{}: no poses", r.poses.display())));
-        }
-        let poses = PoseBufferConfig {
-            capacity: list.len().max(2),
-            max_gap_s: args.max_pose_gap_s,
-            ..PoseBufferConfig::default()
-        };
-        let (first, last) = (list[0].stamp, list[list.len() - 1].stamp);
-        if first > start.plus_secs(24.0 * 3600.0) || last < start {
-            return Err(SimError::Replay(format!(
-                "{}: poses cover {:.3}–{:.3} s but the audio of {} starts at {:.3} s: the time ranges do not overlap",
-                r.poses.display(),
-                first.seconds_since(SIM_EPOCH),
-                last.seconds_since(SIM_EPOCH),
-                r.id,
-                r.start_s
-            )));
-        }
-        paths.push(RobotPath {
-            id: r.id.clone(),
-            samples: list
-                .iter()
-                .step_by((list.len() / 2000).max(1))
-                .map(|p| {
-                    let t = p.map_from_base.translation.vector;
-                    (p.stamp.seconds_since(SIM_EPOCH), t.x, t.y, p.map_from_base.rotation.euler_angles().2)
-                })
-                .collect(),
-            goals: vec![],
-        });
-        let covariance = match (r.pose_std_m, r.yaw_std_deg) {
-            (None, None) => None,
-            (p, y) => Some(pose_covariance(p.unwrap_or(0.0), y.unwrap_or(0.0).to_radians())),
-        };
-        let hop = vec![0.0; array.channels() * pipeline.hop_len()];
-        let id = RobotId::parse(&r.id, "id")?;
-        let version = concat!("soundmap-sim replay ", env!("CARGO_PKG_VERSION"));
-        let core_config = CoreConfig {
-            pose_buffer: poses,
-            doa_sigma_floor_rad: pipeline.doa_sigma_floor_rad(),
-            ..CoreConfig::default()
-        };
-        let mut core = Agent::new(
-            agent::hello(id.clone(), &array, version.into()),
-            core_config,
-            &r.poses.display().to_string(),
-        )?;
-        let trajectory = list.into_iter().map(|p| StampedPose { covariance, ..p }).collect();
-        core.handle_trajectory(start, trajectory)?;
-        let mut robot = Replayed {
-            id,
-            array,
-            pipeline,
-            audio,
-            core,
-            navigator: DecliningNavigator::new("replay: a recorded robot cannot move"),
-            hop,
-            next: None,
-            start,
-            samples_done: 0,
-        };
+        let (mut robot, path) = Replayed::open(r, &pipeline_config, args.max_pose_gap_s)?;
+        paths.push(path);
         robot.advance()?;
         robots.push(robot);
     }
@@ -275,36 +322,10 @@ async fn replay_async(args: &ReplayArgs) -> Result<RunRecord, SimError> {
     while let Some(i) =
         (0..robots.len()).filter(|&i| robots[i].next.is_some()).min_by_key(|&i| (robots[i].next, i))
     {
-        let r = &mut robots[i];
-        let first = r.next.expect("filtered");
-        let hop_len = r.pipeline.hop_len() as u64;
-        let fs = r.pipeline.sample_rate_hz();
-        let result = r.pipeline.process_hop(first, &r.hop);
-        let (stamp, doas) = (result.stamp, result.confirmed_doas());
-        // The coordinator's clock: the end of the simulator-sized block holding this hop.
-        let block = BLOCK_LEN as u64;
-        let block_end = (r.samples_done / block + 1) * block;
-        r.samples_done += hop_len;
-        let now = stamp_of_frame(r.start, block_end, fs);
+        let now = robots[i].hop(&mut fleet, i).await?;
         end = end.max(now);
-        fleet.set_time(now);
-        r.core.handle_hop(now, stamp, doas);
-        exchange(&mut fleet, &mut r.core, &mut r.navigator, i, now).await?;
         for e in fleet.drain_estimates()? {
-            let at = Stamp::from_ns(e.stamp_ns);
-            let truth_at = truth
-                .as_ref()
-                .and_then(|(_, b)| b.lookup(at).ok())
-                .map(|p| p.map_from_base.translation.vector.into());
-            let arrays: Vec<Point3<f64>> = robots
-                .iter()
-                .map(|r| {
-                    r.core.poses().lookup(at).ok().map_or_else(Point3::origin, |p| {
-                        p.map_from_base * r.array.base_from_array * Point3::origin()
-                    })
-                })
-                .collect();
-            rows.push(row_of(&e, SIM_EPOCH, truth_at, if truth_at.is_some() { &arrays } else { &[] }));
+            rows.push(score(&e, &robots, truth.as_ref().map(|(_, b)| b)));
         }
         robots[i].advance()?;
     }

@@ -93,8 +93,23 @@ pub fn scene(s: &Scenario, seed: u64) -> Result<Scene, SimError> {
 }
 
 async fn run_async(scenario: &Scenario, options: &RunOptions) -> Result<RunRecord, SimError> {
-    let seed = options.seed.unwrap_or(scenario.seed);
-    let active = options.active_positioning.unwrap_or(scenario.active_positioning.enabled);
+    let mut sim = Sim::start(scenario, options).await?;
+    let blocks = (scenario.duration_s * sim.fs as f64 / BLOCK_LEN as f64).ceil() as u64;
+    let bar = progress_bar(options.progress, blocks, &scenario.name);
+    for b in 0..blocks {
+        sim.block(b).await?;
+        if let Some(bar) = &bar {
+            bar.inc(1);
+        }
+    }
+    if let Some(bar) = bar {
+        bar.finish_and_clear();
+    }
+    sim.finish(blocks).await
+}
+
+/// The robots of a scenario.
+fn build_robots(scenario: &Scenario, seed: u64) -> Result<Vec<SimRobot>, SimError> {
     let fs = scenario.agent.sample_rate_hz;
     let hop = scenario.agent.hop_len;
     if hop == 0 || !BLOCK_LEN.is_multiple_of(hop) {
@@ -109,149 +124,197 @@ async fn run_async(scenario: &Scenario, options: &RunOptions) -> Result<RunRecor
     let reference = direct_path_rms(scenario.sources[0].rms, scenario.noise.reference_distance_m);
     let sensor_std = noise_std_for_snr(reference, scenario.noise.sensor_snr_db);
     let diffuse_std = scenario.noise.diffuse_snr_db.map(|snr| noise_std_for_snr(reference, snr));
-    let mut robots = scenario
+    let (agent, slam) = (&scenario.agent, &scenario.slam);
+    scenario
         .robots
         .iter()
         .enumerate()
         .map(|(i, spec)| {
-            SimRobot::new(
-                i,
-                spec,
-                &scene,
-                &scenario.agent,
-                &scenario.slam,
-                sensor_std,
-                diffuse_std,
-                seed,
-                BLOCK_LEN,
-                hop_s,
-                SIM_EPOCH,
-            )
+            let (n, h) = (sensor_std, diffuse_std);
+            SimRobot::new(i, spec, &scene, agent, slam, n, h, seed, BLOCK_LEN, hop_s, SIM_EPOCH)
         })
-        .collect::<Result<Vec<_>, _>>()?;
-    let mut config = scenario.coordinator.clone();
-    configure_positioning(&mut config, scenario, active);
-    let hellos: Vec<_> = robots.iter().map(SimRobot::hello).collect();
-    let mut fleet = Fleet::start(config, &hellos, SIM_EPOCH).await?;
-    let mut recorders = match &options.record_dir {
-        Some(dir) => {
-            std::fs::create_dir_all(dir).map_err(|e| SimError::io(dir.display(), e))?;
-            Some(
-                robots
-                    .iter()
-                    .map(|r| recording::RobotRecorder::create(dir, r.id.as_str(), r.array.channels(), fs))
-                    .collect::<Result<Vec<_>, _>>()?,
-            )
-        }
-        None => None,
-    };
-    let stamp_of = |sample: u64| stamp_of_frame(SIM_EPOCH, sample, fs);
-    let t_of = |stamp: Stamp| stamp.seconds_since(SIM_EPOCH);
-    let blocks = (scenario.duration_s * fs as f64 / BLOCK_LEN as f64).ceil() as u64;
-    let bar = progress_bar(options.progress, blocks, &scenario.name);
-    let mut rows = rows::RowMaker::new(scenario, &robots);
-    let mut paths: Vec<RobotPath> =
-        robots.iter().map(|r| RobotPath { id: r.id.to_string(), samples: vec![], goals: vec![] }).collect();
-    let mut source_truth = Vec::new();
-    let mut commands = Vec::new();
-    let hops_per_block = BLOCK_LEN / hop;
-    for b in 0..blocks {
+        .collect()
+}
+
+/// A scenario being run.
+struct Sim<'a> {
+    scenario: &'a Scenario,
+    options: &'a RunOptions,
+    seed: u64,
+    active: bool,
+    fs: u32,
+    hop: usize,
+    robots: Vec<SimRobot>,
+    fleet: Fleet,
+    recorders: Option<Vec<recording::RobotRecorder>>,
+    rows: rows::RowMaker,
+    paths: Vec<RobotPath>,
+    source_truth: Vec<(i64, Point3<f64>)>,
+    commands: Vec<(f64, String, String)>,
+}
+
+impl<'a> Sim<'a> {
+    async fn start(scenario: &'a Scenario, options: &'a RunOptions) -> Result<Sim<'a>, SimError> {
+        let seed = options.seed.unwrap_or(scenario.seed);
+        let active = options.active_positioning.unwrap_or(scenario.active_positioning.enabled);
+        let fs = scenario.agent.sample_rate_hz;
+        let robots = build_robots(scenario, seed)?;
+        let mut config = scenario.coordinator.clone();
+        configure_positioning(&mut config, scenario, active);
+        let hellos: Vec<_> = robots.iter().map(SimRobot::hello).collect();
+        let fleet = Fleet::start(config, &hellos, SIM_EPOCH).await?;
+        let recorders = match &options.record_dir {
+            Some(dir) => {
+                std::fs::create_dir_all(dir).map_err(|e| SimError::io(dir.display(), e))?;
+                Some(
+                    robots
+                        .iter()
+                        .map(|r| recording::RobotRecorder::create(dir, r.id.as_str(), r.array.channels(), fs))
+                        .collect::<Result<Vec<_>, _>>()?,
+                )
+            }
+            None => None,
+        };
+        let rows = rows::RowMaker::new(scenario, &robots);
+        let paths = robots
+            .iter()
+            .map(|r| RobotPath { id: r.id.to_string(), samples: vec![], goals: vec![] })
+            .collect();
+        Ok(Sim {
+            scenario,
+            options,
+            seed,
+            active,
+            fs,
+            hop: scenario.agent.hop_len,
+            robots,
+            fleet,
+            recorders,
+            rows,
+            paths,
+            source_truth: Vec::new(),
+            commands: Vec::new(),
+        })
+    }
+
+    fn stamp_of(&self, sample: u64) -> Stamp {
+        stamp_of_frame(SIM_EPOCH, sample, self.fs)
+    }
+
+    /// Block `b`: the robots move hop by hop (SLAM poses to their cores), the
+    /// room renders, the pipelines hear, and the cores' observations go out.
+    async fn block(&mut self, b: u64) -> Result<(), SimError> {
         let first = b * BLOCK_LEN as u64;
-        for h in 0..hops_per_block {
-            let now_s = (first + (h * hop) as u64) as f64 / fs as f64;
-            for r in robots.iter_mut() {
-                r.step(now_s)?;
-            }
-            if options.record_dir.is_some() {
-                let t = stamp_of(first + (h * hop) as u64);
-                source_truth.push((t - SIM_EPOCH, scenario.sources[0].position_at(t_of(t))));
+        self.move_robots(first)?;
+        let end_s = (first + BLOCK_LEN as u64) as f64 / self.fs as f64;
+        let sources: Vec<Point3<f64>> = self.scenario.sources.iter().map(|s| s.position_at(end_s)).collect();
+        let fs = self.fs;
+        let stamp_of = move |sample: u64| stamp_of_frame(SIM_EPOCH, sample, fs);
+        hear_all(&mut self.robots, &sources, first, &stamp_of, self.recorders.as_mut())?;
+        let now = self.stamp_of(first + BLOCK_LEN as u64);
+        self.deliver(now).await?;
+        if b % 12 == 0 {
+            for (r, path) in self.robots.iter().zip(self.paths.iter_mut()) {
+                let p = r.pose();
+                path.samples.push((end_s, p.x_m, p.y_m, p.yaw_rad));
             }
         }
-        for (i, r) in robots.iter_mut().enumerate() {
+        Ok(())
+    }
+
+    fn move_robots(&mut self, first: u64) -> Result<(), SimError> {
+        for h in 0..BLOCK_LEN / self.hop {
+            let sample = first + (h * self.hop) as u64;
+            for r in self.robots.iter_mut() {
+                r.step(sample as f64 / self.fs as f64)?;
+            }
+            if self.options.record_dir.is_some() {
+                let t = self.stamp_of(sample);
+                let at = self.scenario.sources[0].position_at(t.seconds_since(SIM_EPOCH));
+                self.source_truth.push((t - SIM_EPOCH, at));
+            }
+        }
+        for (i, r) in self.robots.iter_mut().enumerate() {
             let poses = r.take_published_poses();
-            if let Some(rec) = recorders.as_mut() {
+            if let Some(rec) = self.recorders.as_mut() {
                 for p in &poses {
                     rec[i].pose(p.stamp, SIM_EPOCH, &p.map_from_base)?;
                 }
             }
         }
-        let end_s = (first + BLOCK_LEN as u64) as f64 / fs as f64;
-        let sources: Vec<Point3<f64>> = scenario.sources.iter().map(|s| s.position_at(end_s)).collect();
-        hear_all(&mut robots, &sources, first, &stamp_of, recorders.as_mut())?;
-        let now = stamp_of(first + BLOCK_LEN as u64);
-        fleet.set_time(now);
-        for h in 0..hops_per_block {
-            for i in 0..robots.len() {
-                let hop = robots[i].hops[h].clone();
-                let r = &mut robots[i];
+        Ok(())
+    }
+
+    /// Hands the block's hops to the cores (robot by robot within a hop) and
+    /// exchanges with the coordinator in lockstep; then the navigators report.
+    async fn deliver(&mut self, now: Stamp) -> Result<(), SimError> {
+        self.fleet.set_time(now);
+        for h in 0..BLOCK_LEN / self.hop {
+            for i in 0..self.robots.len() {
+                let r = &mut self.robots[i];
+                let hop = r.hops[h].clone();
                 r.core.handle_hop(now, hop.stamp, hop.doas);
-                let seen = exchange(&mut fleet, &mut r.core, &mut r.navigator, i, now).await?;
+                let seen = exchange(&mut self.fleet, &mut r.core, &mut r.navigator, i, now).await?;
                 for (stamp, cmd) in &seen.commands {
-                    let t_s = t_of(*stamp);
-                    commands.push((t_s, r.id.to_string(), cmd.detail.clone()));
+                    let t_s = stamp.seconds_since(SIM_EPOCH);
+                    self.commands.push((t_s, r.id.to_string(), cmd.detail.clone()));
                     if seen.accepted.contains(&cmd.command_id) {
                         let g = cmd.goal_map_from_base.translation.vector;
-                        paths[i].goals.push((t_s, g.x, g.y));
+                        self.paths[i].goals.push((t_s, g.x, g.y));
                     }
                 }
-                for e in fleet.drain_estimates()? {
-                    rows.push(&e, &robots);
+                for e in self.fleet.drain_estimates()? {
+                    self.rows.push(&e, &self.robots);
                 }
             }
         }
-        for (i, r) in robots.iter_mut().enumerate() {
+        for (i, r) in self.robots.iter_mut().enumerate() {
             r.exchange_with_navigator(now);
-            send_replies(&mut fleet, &mut r.core, i).await?;
+            send_replies(&mut self.fleet, &mut r.core, i).await?;
         }
-        if b % 12 == 0 {
-            for (r, path) in robots.iter().zip(paths.iter_mut()) {
-                let p = r.pose();
-                path.samples.push((end_s, p.x_m, p.y_m, p.yaw_rad));
+        Ok(())
+    }
+
+    async fn finish(self, blocks: u64) -> Result<RunRecord, SimError> {
+        let stream_errors = self.fleet.stream_errors();
+        self.fleet.shutdown().await?;
+        if stream_errors > 0 {
+            return Err(SimError::Coordinator(format!(
+                "the coordinator refused {stream_errors} message(s) of the agents"
+            )));
+        }
+        let scenario = self.scenario;
+        if let (Some(dir), Some(recs)) = (&self.options.record_dir, self.recorders) {
+            for r in recs {
+                r.finish()?;
             }
+            recording::write_source_tum(&dir.join("source.tum"), &self.source_truth)?;
+            write_replay_command(dir, scenario, &self.robots)?;
         }
-        if let Some(bar) = &bar {
-            bar.inc(1);
-        }
+        let duration_s = blocks as f64 * BLOCK_LEN as f64 / self.fs as f64;
+        let a = &scenario.active_positioning;
+        Ok(RunRecord {
+            name: scenario.name.clone(),
+            duration_s,
+            active_positioning: self.active,
+            theta_band_deg: (a.theta_min_deg, a.theta_max_deg),
+            rows: self.rows.finish(),
+            robot_ids: self.robots.iter().map(|r| r.id.to_string()).collect(),
+            robots: self.paths,
+            source_path: (0..=(duration_s * 10.0) as usize)
+                .map(|k| {
+                    let t = k as f64 / 10.0;
+                    (t, scenario.sources[0].position_at(t))
+                })
+                .collect(),
+            room: Some(RoomOutline {
+                floor: scenario.room.floor(),
+                obstacles: scenario.room.obstacles.clone(),
+            }),
+            seed: Some(self.seed),
+            commands: self.commands,
+        })
     }
-    if let Some(bar) = bar {
-        bar.finish_and_clear();
-    }
-    let stream_errors = fleet.stream_errors();
-    fleet.shutdown().await?;
-    if stream_errors > 0 {
-        return Err(SimError::Coordinator(format!(
-            "the coordinator refused {stream_errors} message(s) of the agents"
-        )));
-    }
-    if let (Some(dir), Some(recs)) = (&options.record_dir, recorders) {
-        for r in recs {
-            r.finish()?;
-        }
-        recording::write_source_tum(&dir.join("source.tum"), &source_truth)?;
-        write_replay_command(dir, scenario, &robots)?;
-    }
-    let duration_s = blocks as f64 * BLOCK_LEN as f64 / fs as f64;
-    Ok(RunRecord {
-        name: scenario.name.clone(),
-        duration_s,
-        active_positioning: active,
-        theta_band_deg: (
-            scenario.active_positioning.theta_min_deg,
-            scenario.active_positioning.theta_max_deg,
-        ),
-        rows: rows.finish(),
-        robot_ids: robots.iter().map(|r| r.id.to_string()).collect(),
-        robots: paths,
-        source_path: (0..=(duration_s * 10.0) as usize)
-            .map(|k| {
-                let t = k as f64 / 10.0;
-                (t, scenario.sources[0].position_at(t))
-            })
-            .collect(),
-        room: Some(RoomOutline { floor: scenario.room.floor(), obstacles: scenario.room.obstacles.clone() }),
-        seed: Some(seed),
-        commands,
-    })
 }
 
 /// Writes `replay-command.txt`: the `soundmap-sim replay` call that replays the recording.
