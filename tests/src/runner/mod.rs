@@ -213,7 +213,7 @@ impl<'a> Sim<'a> {
         hear_all(&mut self.robots, &sources, first, &stamp_of, self.recorders.as_mut())?;
         let now = self.stamp_of(first + BLOCK_LEN as u64);
         self.deliver(now).await?;
-        if b % 12 == 0 {
+        if b.is_multiple_of(12) {
             for (r, path) in self.robots.iter().zip(self.paths.iter_mut()) {
                 let p = r.pose();
                 path.samples.push((end_s, p.x_m, p.y_m, p.yaw_rad));
