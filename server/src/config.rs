@@ -41,6 +41,8 @@ pub struct CoordinatorConfig {
     /// The placement planner (`[planner]`), room and obstacles included. Its θ
     /// band comes from `[active_positioning]`.
     pub planner: PlannerConfig,
+    /// How many sources are followed (`[sources]`; see the sound map).
+    pub sources: SourcesConfig,
 }
 
 /// Active positioning: whether the coordinator commands the robots, the θ band
@@ -143,6 +145,64 @@ pub struct OutputConfig {
     pub observations_jsonl: Option<PathBuf>,
 }
 
+/// `[sources]`: how many sources are followed and how they are born and remembered.
+#[derive(Clone, Debug, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct SourcesConfig {
+    /// Most sources followed at once. 1: one source, from each robot's dominant
+    /// DoA (the single-source coordinator).
+    pub max_sources: usize,
+    /// Consecutive estimate rounds in which the same robot-local tracks must
+    /// pair up before a source is born from them.
+    pub birth_rounds: u32,
+    /// A source born within this distance of a lost one's last position takes
+    /// back its id (m).
+    pub reuse_radius_m: f64,
+    /// How long a lost source is remembered for that (s).
+    pub memory_s: f64,
+    /// No source is born within this distance of a live one (m): rays there that
+    /// no source claimed are taken as that source's outliers.
+    pub exclusion_radius_m: f64,
+}
+
+impl Default for SourcesConfig {
+    /// One source; for several: 3 birth rounds, 1 m reuse radius, 120 s memory, 0.5 m exclusion.
+    fn default() -> Self {
+        SourcesConfig {
+            max_sources: 1,
+            birth_rounds: 3,
+            reuse_radius_m: 1.0,
+            memory_s: 120.0,
+            exclusion_radius_m: 0.5,
+        }
+    }
+}
+
+impl SourcesConfig {
+    /// Checks the values; errors name the key within `[sources]`.
+    pub fn validate(&self) -> Result<(), ValidationError> {
+        let bad = |field: &str, value: f64, range: &'static str| {
+            ValidationError::new(field, Problem::OutOfRange { value, range })
+        };
+        if !(1..=64).contains(&self.max_sources) {
+            return Err(bad("max_sources", self.max_sources as f64, "[1, 64]"));
+        }
+        if !(1..=100).contains(&self.birth_rounds) {
+            return Err(bad("birth_rounds", self.birth_rounds as f64, "[1, 100]"));
+        }
+        for (field, v) in [
+            ("reuse_radius_m", self.reuse_radius_m),
+            ("memory_s", self.memory_s),
+            ("exclusion_radius_m", self.exclusion_radius_m),
+        ] {
+            if !(v.is_finite() && (0.0..=1e6).contains(&v)) {
+                return Err(bad(field, v, "[0, 1e6]"));
+            }
+        }
+        Ok(())
+    }
+}
+
 /// Robot authentication by bearer token (`authorization: Bearer TOKEN`).
 #[derive(Clone, Debug, Default, PartialEq, Deserialize)]
 #[serde(deny_unknown_fields, default)]
@@ -168,6 +228,7 @@ impl Default for CoordinatorConfig {
             tracking: TrackerConfig::default(),
             active_positioning: ActivePositioningConfig::default(),
             planner: PlannerConfig::default(),
+            sources: SourcesConfig::default(),
         }
     }
 }
@@ -286,6 +347,10 @@ impl CoordinatorConfig {
             return err("auth.required", "true, but auth.tokens is empty: no robot could connect".into());
         }
         self.tracking.validate().map_err(|e| invalid_key(path, e.within("tracking")))?;
+        self.sources.validate().map_err(|e| invalid_key(path, e.within("sources")))?;
+        if self.sources.max_sources > 1 && !self.tracking.enabled {
+            return err("sources.max_sources", "several sources need [tracking] enabled = true".into());
+        }
         self.validate_positioning(path)?;
         Ok(())
     }

@@ -8,6 +8,7 @@
 //! - [`uncertainty`]: Fisher information, covariance, GDOP, θ, conditioning.
 //! - [`stats`]: χ² quantiles for gates.
 //! - [`tracking`]: 3D constant-velocity Kalman tracking of a source from DoAs.
+//! - [`association`]: which rays belong to which source (assignment, births).
 //! - [`planner`]: where robots should go to keep θ in band (Clarabel).
 //! - [`coordinator`]: the state machine tying robots, alignment and estimates together.
 //!
@@ -17,6 +18,7 @@
 //! - [`config`]: `coordinator.toml`. [`clock`]: system or driven time.
 //! - [`error`]: the crate's error type.
 
+pub mod association;
 pub mod clock;
 pub mod config;
 pub mod coordinator;

@@ -6,7 +6,10 @@
 //!   to it and its reports;
 //! - [`estimate`]: what is published about the source (triangulation and
 //!   filtered state side by side);
-//! - [`tracking`]: the source tracker fed with every robot's dominant DoA;
+//! - [`tracking`]: the source tracker fed with every robot's dominant DoA
+//!   (one source, `sources.max_sources = 1`);
+//! - [`sound_map`]: several sources (`sources.max_sources > 1`): association,
+//!   births, deaths, stable ids, one tracker per source;
 //! - [`positioning`]: the operator's settings, the planner and command
 //!   bookkeeping; `reposition` runs a planning cycle on an estimate when the
 //!   planner's [`cadence`](crate::planner::cadence) says one is due.
@@ -16,6 +19,7 @@ pub mod estimate;
 pub mod positioning;
 mod reposition;
 pub mod robots;
+pub mod sound_map;
 pub mod tracking;
 
 use std::collections::{BTreeMap, HashMap};
@@ -36,6 +40,7 @@ use crate::error::ServerError;
 use crate::ray::Ray;
 use crate::triangulation::triangulate;
 use positioning::Positioning;
+use sound_map::{AlignedRays, SoundMap};
 use tracking::Tracking;
 
 /// The coordinator's answer to a valid hello.
@@ -86,6 +91,10 @@ pub struct Coordinator {
     counters: Counters,
     liveness: BTreeMap<RobotId, Liveness>,
     tracking: Tracking,
+    /// Several sources (`sources.max_sources > 1`).
+    sound_map: Option<SoundMap>,
+    /// The latest estimate of each source (several sources).
+    latest_by_source: BTreeMap<u64, Estimate>,
     positioning: Positioning,
     /// Messages for robots' streams, sent by the shell before the batch's acknowledgements.
     outbox: Vec<Outgoing>,
@@ -98,6 +107,9 @@ impl Coordinator {
         config.validate(std::path::Path::new("<config>"))?;
         Ok(Coordinator {
             tracking: Tracking::new(&config.tracking),
+            sound_map: (config.sources.max_sources > 1)
+                .then(|| SoundMap::new(config.sources.clone(), config.tracking.clone())),
+            latest_by_source: BTreeMap::new(),
             positioning: Positioning::new(&config)?,
             config,
             robots: BTreeMap::new(),
@@ -200,6 +212,9 @@ impl Coordinator {
             if let Some(e) = self.robots.get_mut(&id) {
                 e.conn = None;
                 self.tracking.forget_robot(e.index);
+                if let Some(m) = self.sound_map.as_mut() {
+                    m.forget_robot(e.index);
+                }
             }
             self.liveness.insert(id, Liveness::Disconnected);
         }
@@ -224,6 +239,7 @@ impl Coordinator {
     /// ones, builds its rays in the map frame and keeps them for alignment.
     pub fn observe(&mut self, now: Stamp, conn: ConnId, obs: Observation) -> Result<(), ServerError> {
         let min_activity = self.config.doa.min_activity;
+        let several = self.sound_map.is_some();
         let default_sigma = self.config.doa.default_sigma_deg.to_radians();
         let history_ns = self.config.alignment.history_ms as i64 * 1_000_000;
         let entry = match self.entry_mut(conn, "observation") {
@@ -279,8 +295,16 @@ impl Coordinator {
             entry.last_sigma_rad = Some(ray.sigma_rad);
         }
         let index = entry.index;
+        let all_rays = several.then(|| stored.rays.clone());
         entry.remember(stored, history_ns);
         self.counters.observations += 1;
+        if let (Some(map), Some(rays)) = (self.sound_map.as_mut(), all_rays) {
+            if !rays.is_empty() {
+                self.pending = Some(self.pending.map_or(obs.stamp, |p| p.max(obs.stamp)));
+            }
+            map.push(obs.stamp, index, rays);
+            return Ok(());
+        }
         self.tracking.note_stamp(index, obs.stamp);
         if let Some(ray) = dominant {
             self.tracking.push(obs.stamp, index, ray);
@@ -313,6 +337,9 @@ impl Coordinator {
     pub fn tick(&mut self, now: Stamp) -> Vec<LivenessChange> {
         self.tracking.flush(now);
         self.tracking.maintain(now);
+        if let Some(m) = self.sound_map.as_mut() {
+            m.flush(now);
+        }
         let stale_after_ns = self.stale_after_ns();
         let mut changes = Vec::new();
         for (id, e) in &self.robots {
@@ -336,7 +363,14 @@ impl Coordinator {
     /// applies the queued DoAs to the tracker, and, when active positioning is on
     /// and due, runs a planning cycle whose commands are queued for
     /// [`Coordinator::take_outgoing`].
-    pub fn estimate(&mut self, now: Stamp) -> Option<Estimate> {
+    pub fn estimate(&mut self, now: Stamp) -> Vec<Estimate> {
+        if self.sound_map.is_some() {
+            return self.estimate_sources(now);
+        }
+        self.estimate_one(now).into_iter().collect()
+    }
+
+    fn estimate_one(&mut self, now: Stamp) -> Option<Estimate> {
         // A track silent too long is lost before a new one may start from this batch.
         self.tracking.maintain(now);
         let aligned = self.pending.take().and_then(|t| self.triangulate_at(now, t));
@@ -353,6 +387,82 @@ impl Coordinator {
             self.reposition(now, &estimate);
         }
         Some(estimate)
+    }
+
+    /// Several sources: the sound map steps (deaths, births, updates) and every
+    /// live source heard by at least two robots at the pending stamp gets an
+    /// estimate. The planner works on the primary source: the longest-followed
+    /// one with an estimate in this batch.
+    fn estimate_sources(&mut self, now: Stamp) -> Vec<Estimate> {
+        let Some(t) = self.pending.take() else { return Vec::new() };
+        let (aligned, ids) = self.aligned_rays(now, t);
+        let Some(map) = self.sound_map.as_mut() else { return Vec::new() };
+        map.step(now, &aligned, &self.config.triangulation);
+        let live: Vec<u64> = map.sources().map(|(id, ..)| id).collect();
+        self.latest_by_source.retain(|id, _| live.contains(id));
+        let sightings = map.sightings(&aligned, t, &self.config.triangulation);
+        let correlated_doa_fraction = self.config.tracking.correlated_doa_fraction;
+        let estimates: Vec<Estimate> = sightings
+            .into_iter()
+            .map(|s| Estimate {
+                source_id: s.source_id,
+                stamp: t,
+                robots: s.robots.iter().filter_map(|i| ids.get(i).cloned()).collect(),
+                triangulation: s.triangulation,
+                filtered: s.filtered,
+                correlated_doa_fraction,
+            })
+            .collect();
+        if estimates.is_empty() {
+            self.counters.unaligned += 1;
+        }
+        for e in &estimates {
+            self.latest_by_source.insert(e.source_id, e.clone());
+        }
+        self.counters.estimates += estimates.len() as u64;
+        // The primary source: live the longest (the map lists sources in birth order).
+        let primary = live.iter().find_map(|id| estimates.iter().find(|e| e.source_id == *id)).cloned();
+        if let Some(p) = primary {
+            self.last_estimate = Some(p.clone());
+            if self.positioning.due(now) {
+                self.reposition(now, &p);
+            }
+        }
+        estimates
+    }
+
+    /// Each live robot's observation nearest `t` within the alignment window
+    /// (with rays), and robot ids by index.
+    fn aligned_rays(&self, now: Stamp, t: Stamp) -> (Vec<AlignedRays>, HashMap<u32, RobotId>) {
+        let window_ns = self.config.alignment.window_ms as i64 * 1_000_000;
+        let stale_after_ns = self.stale_after_ns();
+        let mut aligned = Vec::new();
+        let mut ids = HashMap::new();
+        for (id, e) in &self.robots {
+            if e.liveness(now, stale_after_ns) != Liveness::Live {
+                continue;
+            }
+            let Some(o) = e.nearest(t, window_ns) else { continue };
+            if !o.rays.is_empty() {
+                aligned.push(AlignedRays { robot: e.index, stamp: o.stamp, rays: o.rays.clone() });
+                ids.insert(e.index, id.clone());
+            }
+        }
+        (aligned, ids)
+    }
+
+    /// The latest estimate of every live source (one source: the latest estimate).
+    pub fn latest_estimates(&self) -> Vec<&Estimate> {
+        if self.sound_map.is_some() {
+            self.latest_by_source.values().collect()
+        } else {
+            self.last_estimate.iter().collect()
+        }
+    }
+
+    /// The sound map, when several sources are followed.
+    pub fn sound_map(&self) -> Option<&SoundMap> {
+        self.sound_map.as_ref()
     }
 
     /// Triangulates the rays aligned with `t`; also returns the newest stamp among them.

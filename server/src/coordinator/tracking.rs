@@ -73,6 +73,16 @@ impl Ord for Queued {
 /// the filtered state is at most this much behind the newest DoA.
 pub const MAX_HOLD_MS: i64 = 100;
 
+/// Stamp up to which queued DoAs can be applied at `now`: the oldest of the
+/// robots' latest stamps (`latest`), held at most [`MAX_HOLD_MS`] behind the
+/// newest stamp and behind `now` (see the module docs).
+pub(crate) fn watermark(latest: &[Option<Stamp>], newest: Option<Stamp>, now: Stamp) -> Option<Stamp> {
+    let newest = newest?;
+    let hold_ns = MAX_HOLD_MS * 1_000_000;
+    let slowest = latest.iter().flatten().min().copied().unwrap_or(newest);
+    Some(slowest.max(newest.plus_ns(-hold_ns)).max(newest.min(now.plus_ns(-hold_ns))))
+}
+
 /// The coordinator's tracker and its queue of DoAs.
 #[derive(Debug)]
 pub struct Tracking {
@@ -164,10 +174,7 @@ impl Tracking {
 
     /// Stamp up to which queued DoAs can be applied at `now` (see the module docs).
     fn watermark(&self, now: Stamp) -> Option<Stamp> {
-        let newest = self.newest?;
-        let hold_ns = MAX_HOLD_MS * 1_000_000;
-        let slowest = self.latest.iter().flatten().min().copied().unwrap_or(newest);
-        Some(slowest.max(newest.plus_ns(-hold_ns)).max(newest.min(now.plus_ns(-hold_ns))))
+        watermark(&self.latest, self.newest, now)
     }
 
     /// Starts a track from `triangulation` (whose newest ray is stamped `stamp`)

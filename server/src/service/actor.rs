@@ -311,14 +311,17 @@ impl Actor {
     }
 
     fn publish(&mut self, now: Stamp) {
-        let Some(estimate) = self.coordinator.estimate(now) else {
+        let estimates = self.coordinator.estimate(now);
+        if estimates.is_empty() {
             return;
-        };
-        let wire = Arc::new(estimate_to_wire(&estimate));
-        // No watcher is not an error.
-        let _ = self.estimates.send(wire.clone());
-        if let Some(sink) = &self.sink {
-            let _ = sink.send(wire);
+        }
+        for estimate in &estimates {
+            let wire = Arc::new(estimate_to_wire(estimate));
+            // No watcher is not an error.
+            let _ = self.estimates.send(wire.clone());
+            if let Some(sink) = &self.sink {
+                let _ = sink.send(wire);
+            }
         }
         if !self.receipts.is_empty() {
             let published = Instant::now();
@@ -401,7 +404,7 @@ impl Actor {
                     e.status(self.coordinator.liveness_of(id, now).expect("known robot")).to_wire()
                 })
                 .collect(),
-            sources: self.coordinator.last_estimate().map(estimate_to_wire).into_iter().collect(),
+            sources: self.coordinator.latest_estimates().into_iter().map(estimate_to_wire).collect(),
             active_positioning: Some(self.coordinator.positioning().to_wire()),
             planner: self.coordinator.planner_status().map(PlannerStatus::to_wire),
         }

@@ -1,0 +1,430 @@
+//! The sound map: every source the robots hear, each with its own tracker,
+//! when `sources.max_sources > 1` (with 1, the coordinator follows one source
+//! from each robot's dominant DoA, as before).
+//!
+//! Per batch ([`SoundMap::step`], called by the coordinator's estimate):
+//! 1. **Deaths.** A source's track lost for silence or spread leaves the live
+//!    set; its last position is remembered for `sources.memory_s`.
+//! 2. **Births.** Rays no live source claims, aligned across robots, are
+//!    paired and gated, confirmed by a third robot where there is one, and the
+//!    best disjoint set of candidates is kept ([`crate::association`]). A
+//!    candidate made of the same robot-local tracks must recur in
+//!    `sources.birth_rounds` consecutive rounds before a source is born from its
+//!    triangulation. A source born within `sources.reuse_radius_m` of a
+//!    remembered one takes back its id: a talker who pauses and speaks again at
+//!    the same place keeps their id.
+//! 3. **Updates.** Every robot's observations are applied to the sources in
+//!    stamp order up to the robots' watermark (as the single-source tracker
+//!    does); the rays of each observation are assigned to sources jointly by
+//!    global nearest neighbour with a prior that holds each robot-local track
+//!    on the source it fed ([`crate::association`]). The assignments are
+//!    remembered as *labels* (robot, local track) → source.
+//! 4. **Estimates.** For each live source, the rays of the robots whose
+//!    aligned observation holds a track labelled with it are triangulated, and
+//!    the source's filtered state is published beside that triangulation.
+
+use std::cmp::Reverse;
+use std::collections::{BinaryHeap, HashMap};
+
+use nalgebra::Point3;
+use soundmap_proto::Stamp;
+
+use crate::association::{assign, best_disjoint};
+use crate::config::SourcesConfig;
+use crate::ray::Ray;
+use crate::stats::chi2_quantile;
+use crate::tracking::{InitOutcome, SourceTracker, TrackEstimate, TrackerConfig, UpdateOutcome};
+use crate::triangulation::{Gate, Triangulation, TriangulationConfig, triangulate};
+
+/// A ray of one robot's observation: the ray, the DoA's activity and the
+/// robot-local track id.
+pub type TaggedRay = (Ray, f64, u64);
+
+/// A robot-local track: (robot index, the robot's track id).
+type TrackKey = (u32, u64);
+
+/// A birth candidate: its tracks (sorted), their triangulation and newest stamp.
+type Candidate = (Vec<TrackKey>, Triangulation, Stamp);
+
+/// A robot's rays aligned with the estimate's stamp.
+#[derive(Clone, Debug)]
+pub struct AlignedRays {
+    /// Robot index.
+    pub robot: u32,
+    /// Stamp of the observation.
+    pub stamp: Stamp,
+    /// Its rays.
+    pub rays: Vec<TaggedRay>,
+}
+
+/// A source in the map.
+#[derive(Clone, Debug)]
+struct MapSource {
+    id: u64,
+    tracker: SourceTracker,
+    first_heard: Stamp,
+    last_heard: Stamp,
+}
+
+/// A lost source kept for its id.
+#[derive(Clone, Copy, Debug)]
+struct Remembered {
+    id: u64,
+    position_in_map: Point3<f64>,
+    last_heard: Stamp,
+}
+
+/// Which source a robot-local track fed last, and when.
+#[derive(Clone, Copy, Debug)]
+struct Label {
+    source: u64,
+    last: Stamp,
+}
+
+/// An observation waiting to be applied.
+#[derive(Debug)]
+struct Queued {
+    stamp: Stamp,
+    arrival: u64,
+    robot: u32,
+    rays: Vec<TaggedRay>,
+}
+
+impl PartialEq for Queued {
+    fn eq(&self, o: &Self) -> bool {
+        (self.stamp, self.arrival) == (o.stamp, o.arrival)
+    }
+}
+impl Eq for Queued {}
+impl PartialOrd for Queued {
+    fn partial_cmp(&self, o: &Self) -> Option<std::cmp::Ordering> {
+        Some(self.cmp(o))
+    }
+}
+impl Ord for Queued {
+    fn cmp(&self, o: &Self) -> std::cmp::Ordering {
+        (self.stamp, self.arrival).cmp(&(o.stamp, o.arrival))
+    }
+}
+
+/// Labels not refreshed for this long are forgotten (ns).
+const LABEL_TTL_NS: i64 = 5_000_000_000;
+
+/// One published source at a stamp: its id, the robots and rays that heard
+/// it, their triangulation, and its filtered state.
+#[derive(Clone, Debug)]
+pub struct SourceSighting {
+    /// Source id.
+    pub source_id: u64,
+    /// Robot indices of the rays.
+    pub robots: Vec<u32>,
+    /// The rays' triangulation.
+    pub triangulation: Triangulation,
+    /// The source's filtered state at the stamp.
+    pub filtered: Option<TrackEstimate>,
+    /// Newest stamp of the rays.
+    pub newest: Stamp,
+}
+
+/// The sound map (see the [module docs](self)).
+#[derive(Debug)]
+pub struct SoundMap {
+    config: SourcesConfig,
+    tracker: TrackerConfig,
+    gate: f64,
+    sources: Vec<MapSource>,
+    remembered: Vec<Remembered>,
+    labels: HashMap<(u32, u64), Label>,
+    /// Birth candidates by their (robot, track) keys: consecutive rounds seen.
+    candidates: HashMap<Vec<(u32, u64)>, u32>,
+    queue: BinaryHeap<Reverse<Queued>>,
+    arrivals: u64,
+    latest: Vec<Option<Stamp>>,
+    newest: Option<Stamp>,
+    next_id: u64,
+    /// Sources born since start.
+    pub births: u64,
+}
+
+impl SoundMap {
+    /// An empty map.
+    pub fn new(config: SourcesConfig, tracker: TrackerConfig) -> Self {
+        let gate = chi2_quantile(2, tracker.association_probability);
+        SoundMap {
+            config,
+            tracker,
+            gate,
+            sources: Vec::new(),
+            remembered: Vec::new(),
+            labels: HashMap::new(),
+            candidates: HashMap::new(),
+            queue: BinaryHeap::new(),
+            arrivals: 0,
+            latest: Vec::new(),
+            newest: None,
+            next_id: 1,
+            births: 0,
+        }
+    }
+
+    /// Robot `robot`'s observation stamped `stamp` (its rays may be empty).
+    pub fn push(&mut self, stamp: Stamp, robot: u32, rays: Vec<TaggedRay>) {
+        let i = robot as usize;
+        if self.latest.len() <= i {
+            self.latest.resize(i + 1, None);
+        }
+        self.latest[i] = Some(self.latest[i].map_or(stamp, |l| l.max(stamp)));
+        self.newest = Some(self.newest.map_or(stamp, |n| n.max(stamp)));
+        if !rays.is_empty() {
+            self.arrivals += 1;
+            self.queue.push(Reverse(Queued { stamp, arrival: self.arrivals, robot, rays }));
+        }
+    }
+
+    /// Robot `robot` is gone: the watermark no longer waits for it.
+    pub fn forget_robot(&mut self, robot: u32) {
+        if let Some(l) = self.latest.get_mut(robot as usize) {
+            *l = None;
+        }
+    }
+
+    /// Deaths, births from `aligned` (each live robot's observation nearest the
+    /// stamp), then the queued updates up to the watermark at `now`.
+    pub fn step(&mut self, now: Stamp, aligned: &[AlignedRays], triangulation: &TriangulationConfig) {
+        self.deaths(now);
+        self.births(now, aligned, triangulation);
+        self.flush(now);
+        self.labels.retain(|_, l| now - l.last < LABEL_TTL_NS);
+    }
+
+    /// Applies queued observations up to the watermark.
+    pub fn flush(&mut self, now: Stamp) {
+        let Some(watermark) = super::tracking::watermark(&self.latest, self.newest, now) else { return };
+        while self.queue.peek().is_some_and(|q| q.0.stamp <= watermark) {
+            let Some(Reverse(q)) = self.queue.pop() else { break };
+            self.apply(q);
+        }
+    }
+
+    fn deaths(&mut self, now: Stamp) {
+        let memory_ns = (self.config.memory_s * 1e9) as i64;
+        self.remembered.retain(|r| now - r.last_heard <= memory_ns);
+        let mut i = 0;
+        while i < self.sources.len() {
+            self.sources[i].tracker.maintain(now);
+            if self.sources[i].tracker.needs_track() {
+                let s = self.sources.swap_remove(i);
+                if let Some(e) = s.tracker.estimate() {
+                    self.remembered.push(Remembered {
+                        id: s.id,
+                        position_in_map: e.position_in_map,
+                        last_heard: s.last_heard,
+                    });
+                }
+                self.labels.retain(|_, l| l.source != s.id);
+                tracing::debug!(source = s.id, "source lost");
+            } else {
+                i += 1;
+            }
+        }
+    }
+
+    /// One observation's rays assigned to the live sources (GNN with the label prior).
+    fn apply(&mut self, q: Queued) {
+        if self.sources.is_empty() {
+            return;
+        }
+        let half = self.gate * 0.5;
+        let cost: Vec<Vec<f64>> = q
+            .rays
+            .iter()
+            .map(|(ray, _, track)| {
+                let label = self.labels.get(&(q.robot, *track)).map(|l| l.source);
+                self.sources
+                    .iter()
+                    .map(|s| match s.tracker.nis(q.stamp, ray) {
+                        Some(nis) if nis <= self.gate => match label {
+                            Some(l) if l == s.id => nis - half,
+                            Some(_) => nis + half,
+                            None => nis,
+                        },
+                        _ => f64::INFINITY,
+                    })
+                    .collect()
+            })
+            .collect();
+        for (k, j) in assign(&cost, self.gate).into_iter().enumerate() {
+            let Some(j) = j else { continue };
+            let (ray, _, track) = q.rays[k];
+            let s = &mut self.sources[j];
+            if matches!(s.tracker.update(q.stamp, q.robot, &ray), UpdateOutcome::Applied { .. }) {
+                s.last_heard = s.last_heard.max(q.stamp);
+                self.labels.insert((q.robot, track), Label { source: s.id, last: q.stamp });
+            }
+        }
+    }
+
+    fn claimed(&self, robot: u32, track: u64) -> bool {
+        self.labels.get(&(robot, track)).is_some_and(|l| self.sources.iter().any(|s| s.id == l.source))
+    }
+
+    /// Candidate births from the unclaimed aligned rays (see the module docs).
+    fn births(&mut self, now: Stamp, aligned: &[AlignedRays], config: &TriangulationConfig) {
+        let free: Vec<(u32, u64, Ray, Stamp)> = aligned
+            .iter()
+            .flat_map(|a| {
+                a.rays
+                    .iter()
+                    .filter(|(_, _, track)| !self.claimed(a.robot, *track))
+                    .map(move |(ray, _, track)| (a.robot, *track, *ray, a.stamp))
+            })
+            .collect();
+        let mut members: Vec<Vec<(u32, u64)>> = Vec::new();
+        let mut scores = Vec::new();
+        let mut solutions = Vec::new();
+        for (i, a) in free.iter().enumerate() {
+            for b in free.iter().skip(i + 1).filter(|b| b.0 != a.0) {
+                let Some((keys, tri, newest)) = self.candidate(a, b, &free, config) else { continue };
+                scores.push(2.0 * self.gate * keys.len() as f64 - tri_chi2(&tri));
+                members.push(keys);
+                solutions.push((tri, newest));
+            }
+        }
+        let chosen = best_disjoint(&members, &scores);
+        let mut seen = HashMap::new();
+        for i in chosen {
+            let rounds = self.candidates.get(&members[i]).copied().unwrap_or(0) + 1;
+            seen.insert(members[i].clone(), rounds);
+            if rounds >= self.config.birth_rounds && self.sources.len() < self.config.max_sources {
+                let (tri, newest) = &solutions[i];
+                self.birth(now, *newest, tri, &members[i]);
+                seen.remove(&members[i]);
+            }
+        }
+        self.candidates = seen;
+    }
+
+    /// The candidate made of rays `a` and `b` and any third robots' rays that
+    /// pass near its point, if its triangulation is accepted and it is not at a
+    /// live source.
+    fn candidate(
+        &self,
+        a: &(u32, u64, Ray, Stamp),
+        b: &(u32, u64, Ray, Stamp),
+        free: &[(u32, u64, Ray, Stamp)],
+        config: &TriangulationConfig,
+    ) -> Option<Candidate> {
+        let pair = triangulate(&[a.2, b.2], config);
+        let point = accepted(&pair)?;
+        let mut keys = vec![(a.0, a.1), (b.0, b.1)];
+        let mut rays = vec![a.2, b.2];
+        let mut newest = a.3.max(b.3);
+        let mut robots = vec![a.0, b.0];
+        for c in free {
+            if robots.contains(&c.0) {
+                continue;
+            }
+            let to = point - c.2.origin_in_map;
+            let angle = to.normalize().dot(&c.2.direction_in_map).clamp(-1.0, 1.0).acos();
+            if angle <= 3.0 * c.2.sigma_rad.max(1e-3) {
+                robots.push(c.0);
+                keys.push((c.0, c.1));
+                rays.push(c.2);
+                newest = newest.max(c.3);
+            }
+        }
+        let tri = if rays.len() > 2 { triangulate(&rays, config) } else { pair };
+        let point = accepted(&tri)?;
+        let near_live = self.sources.iter().any(|s| {
+            s.tracker
+                .estimate()
+                .is_some_and(|e| (e.position_in_map - point).norm() < self.config.exclusion_radius_m)
+        });
+        if near_live {
+            return None;
+        }
+        keys.sort();
+        Some((keys, tri, newest))
+    }
+
+    fn birth(&mut self, now: Stamp, newest: Stamp, tri: &Triangulation, keys: &[(u32, u64)]) {
+        let mut tracker = SourceTracker::new(self.tracker.clone());
+        if !matches!(tracker.initialize_from_triangulation(newest, tri), InitOutcome::Started { .. }) {
+            return;
+        }
+        let Some(point) = tri.solution().map(|s| s.source_in_map) else { return };
+        let reuse = self
+            .remembered
+            .iter()
+            .enumerate()
+            .filter(|(_, r)| (r.position_in_map - point).norm() <= self.config.reuse_radius_m)
+            .min_by(|a, b| {
+                (a.1.position_in_map - point).norm().total_cmp(&(b.1.position_in_map - point).norm())
+            })
+            .map(|(i, _)| i);
+        let id = match reuse {
+            Some(i) => self.remembered.swap_remove(i).id,
+            None => {
+                self.next_id += 1;
+                self.next_id - 1
+            }
+        };
+        for &(robot, track) in keys {
+            self.labels.insert((robot, track), Label { source: id, last: now });
+        }
+        self.births += 1;
+        tracing::debug!(source = id, x = point.x, y = point.y, z = point.z, "source born");
+        self.sources.push(MapSource { id, tracker, first_heard: newest, last_heard: newest });
+    }
+
+    /// What each live source looks like at `stamp`: the aligned rays labelled
+    /// with it, their triangulation (at least two robots) and its filter.
+    pub fn sightings(
+        &self,
+        aligned: &[AlignedRays],
+        stamp: Stamp,
+        config: &TriangulationConfig,
+    ) -> Vec<SourceSighting> {
+        let mut out = Vec::new();
+        for s in &self.sources {
+            let mut robots = Vec::new();
+            let mut rays = Vec::new();
+            let mut newest = Stamp::ZERO;
+            for a in aligned {
+                let labelled = a.rays.iter().find(|(_, _, track)| {
+                    self.labels.get(&(a.robot, *track)).is_some_and(|l| l.source == s.id)
+                });
+                if let Some((ray, ..)) = labelled {
+                    robots.push(a.robot);
+                    rays.push(*ray);
+                    newest = newest.max(a.stamp);
+                }
+            }
+            if rays.len() < 2 {
+                continue;
+            }
+            out.push(SourceSighting {
+                source_id: s.id,
+                robots,
+                triangulation: triangulate(&rays, config),
+                filtered: s.tracker.predict_to(stamp),
+                newest,
+            });
+        }
+        out
+    }
+
+    /// Live sources: (id, first heard, last heard, filtered state).
+    pub fn sources(&self) -> impl Iterator<Item = (u64, Stamp, Stamp, Option<TrackEstimate>)> + '_ {
+        self.sources.iter().map(|s| (s.id, s.first_heard, s.last_heard, s.tracker.estimate()))
+    }
+}
+
+/// The point of an accepted triangulation.
+fn accepted(t: &Triangulation) -> Option<Point3<f64>> {
+    t.solution().filter(|s| s.gate == Gate::Accepted).map(|s| s.source_in_map)
+}
+
+fn tri_chi2(t: &Triangulation) -> f64 {
+    t.solution().map_or(f64::INFINITY, |s| s.residual_chi2)
+}

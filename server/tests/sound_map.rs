@@ -1,0 +1,200 @@
+//! Several sources (`sources.max_sources > 1`), the coordinator driven
+//! in-process with `(now, input)`: every robot reports every track it hears;
+//! the coordinator must find each source once, publish no ghosts, and keep a
+//! source's id when it falls silent and speaks again at the same place.
+
+use std::collections::BTreeMap;
+
+use nalgebra::{Isometry3, Point3, Unit, UnitQuaternion};
+use soundmap_proto::{ArrayInfo, Hello, Observation, RobotId, Stamp, TrackedDoa};
+use soundmap_server::CoordinatorConfig;
+use soundmap_server::coordinator::{ConnId, Coordinator, Estimate};
+
+const T0: Stamp = Stamp::from_ns(1_767_225_600_000_000_000);
+const MS: i64 = 1_000_000;
+
+fn array() -> ArrayInfo {
+    ArrayInfo {
+        base_from_array: Isometry3::translation(0.0, 0.0, 0.48),
+        microphone_count: 16,
+        preset: None,
+        microphone_positions: vec![],
+    }
+}
+
+fn hello(id: &str) -> Hello {
+    Hello {
+        robot_id: RobotId::parse(id, "hello.robot_id").unwrap(),
+        array: array(),
+        software_version: "t".into(),
+    }
+}
+
+/// Deterministic small angular noise (rad) for DoA `k` of observation `n`.
+fn jitter(n: u64, k: u64) -> (f64, f64) {
+    let mut x = n.wrapping_mul(6364136223846793005).wrapping_add(k.wrapping_mul(1442695040888963407));
+    let mut u = || {
+        x ^= x >> 33;
+        x = x.wrapping_mul(0xff51afd7ed558ccd);
+        x ^= x >> 33;
+        (x % 10_000) as f64 / 10_000.0 - 0.5
+    };
+    (u() * 0.02, u() * 0.02) // within ±0.6°
+}
+
+struct Robot {
+    conn: ConnId,
+    base: Point3<f64>,
+    sequence: u64,
+}
+
+/// Robot `r`'s observation at `stamp` of the sources `heard`: (robot-local track id, position).
+fn observe(c: &mut Coordinator, r: &mut Robot, stamp: Stamp, heard: &[(u64, Point3<f64>)]) {
+    r.sequence += 1;
+    let map_from_base = Isometry3::translation(r.base.x, r.base.y, r.base.z);
+    let map_from_array = map_from_base * array().base_from_array;
+    let doas = heard
+        .iter()
+        .map(|&(track_id, source)| {
+            let d = (map_from_array.inverse() * source).coords.normalize();
+            let (a, b) = jitter(r.sequence, track_id);
+            let turn = UnitQuaternion::from_euler_angles(a, b, 0.0);
+            TrackedDoa {
+                track_id,
+                direction_in_array: Unit::new_normalize(turn * d),
+                activity: 0.9,
+                angular_sigma_rad: Some(1f64.to_radians()),
+            }
+        })
+        .collect();
+    let obs = Observation { sequence: r.sequence, stamp, map_from_base, pose_covariance: None, doas };
+    c.observe(stamp, r.conn, obs).unwrap();
+}
+
+fn several() -> CoordinatorConfig {
+    let mut config = CoordinatorConfig::default();
+    config.sources.max_sources = 4;
+    config
+}
+
+fn robots(c: &mut Coordinator, bases: &[Point3<f64>]) -> Vec<Robot> {
+    bases
+        .iter()
+        .enumerate()
+        .map(|(i, &base)| {
+            let conn = c.connect(T0, hello(&format!("r{i}")), None).unwrap().conn;
+            Robot { conn, base, sequence: 0 }
+        })
+        .collect()
+}
+
+/// Runs `seconds` at 20 Hz per robot; `heard(robot, t_s)` lists what robot hears.
+fn run(
+    c: &mut Coordinator,
+    robots: &mut [Robot],
+    from_s: f64,
+    seconds: f64,
+    heard: impl Fn(usize, f64) -> Vec<(u64, Point3<f64>)>,
+) -> Vec<(f64, Estimate)> {
+    let mut out = Vec::new();
+    let steps = (seconds * 20.0) as i64;
+    for k in 0..steps {
+        let t_s = from_s + k as f64 * 0.05;
+        for (i, r) in robots.iter_mut().enumerate() {
+            let stamp = T0.plus_secs(t_s).plus_ns(i as i64 * 3 * MS);
+            observe(c, r, stamp, &heard(i, t_s));
+        }
+        let now = T0.plus_secs(t_s).plus_ns(20 * MS);
+        c.tick(now);
+        out.extend(c.estimate(now).into_iter().map(|e| (t_s, e)));
+    }
+    out
+}
+
+fn nearest(p: Point3<f64>, truths: &[Point3<f64>]) -> (usize, f64) {
+    truths.iter().enumerate().map(|(i, t)| (i, (t - p).norm())).min_by(|a, b| a.1.total_cmp(&b.1)).unwrap()
+}
+
+/// Ids per truth, and the largest distance of any estimate to its nearest truth.
+fn score(estimates: &[(f64, Estimate)], truths: &[Point3<f64>]) -> (BTreeMap<usize, Vec<u64>>, f64) {
+    let mut ids: BTreeMap<usize, Vec<u64>> = BTreeMap::new();
+    let mut worst: f64 = 0.0;
+    for (_, e) in estimates {
+        let p = e.position().expect("a position");
+        let (i, d) = nearest(p, truths);
+        worst = worst.max(d);
+        let v = ids.entry(i).or_default();
+        if !v.contains(&e.source_id) {
+            v.push(e.source_id);
+        }
+    }
+    (ids, worst)
+}
+
+#[test]
+fn three_robots_two_sources_no_ghosts_and_a_returning_source_keeps_its_id() {
+    let mut c = Coordinator::new(several()).unwrap();
+    let bases = [Point3::new(4.0, 0.0, 0.0), Point3::new(0.0, 4.0, 0.0), Point3::new(-3.0, -3.0, 0.0)];
+    let mut rs = robots(&mut c, &bases);
+    let s1 = Point3::new(1.0, 0.5, 1.2);
+    let s2 = Point3::new(-0.5, 1.0, 1.7);
+    let truths = [s1, s2];
+    // Each robot numbers its tracks its own way.
+    let local =
+        |robot: usize, source: usize, epoch: u64| (10 * robot as u64 + source as u64 + 1) + 100 * epoch;
+    let both = |i: usize, _t: f64| vec![(local(i, 0, 0), s1), (local(i, 1, 0), s2)];
+    let first = run(&mut c, &mut rs, 0.0, 6.0, both);
+    let (ids, worst) = score(&first, &truths);
+    println!("first 6 s: ids per source {ids:?}, worst distance {worst:.3} m, {} estimates", first.len());
+    assert_eq!(ids.len(), 2, "both sources found: {ids:?}");
+    assert!(ids.values().all(|v| v.len() == 1), "one id per source: {ids:?}");
+    assert!(worst < 0.3, "an estimate {worst:.2} m from every source (a ghost or a bad fit)");
+    let late: Vec<_> = first.iter().filter(|(t, _)| *t > 2.0).collect();
+    assert!(late.len() > 150, "both sources published every round: {}", late.len());
+    let id2 = ids[&1][0];
+
+    // Source 2 falls silent for 8 s, then speaks again at the same place; the
+    // robots' trackers give it new local ids.
+    let only_s1 = |i: usize, _t: f64| vec![(local(i, 0, 0), s1)];
+    let quiet = run(&mut c, &mut rs, 6.0, 8.0, only_s1);
+    assert!(quiet.iter().all(|(_, e)| e.source_id != id2 || (e.position().unwrap() - s2).norm() < 0.3));
+    let again = |i: usize, _t: f64| vec![(local(i, 0, 0), s1), (local(i, 1, 1), s2)];
+    let back = run(&mut c, &mut rs, 14.0, 6.0, again);
+    let (ids_back, worst_back) = score(&back, &truths);
+    let births = c.sound_map().unwrap().births;
+    println!("after the pause: ids per source {ids_back:?}, worst {worst_back:.3} m, {births} births in all");
+    assert_eq!(births, 3, "source 2 was lost during the pause and born again");
+    assert_eq!(ids_back.get(&1), Some(&vec![id2]), "the returning source keeps its id");
+    assert!(worst_back < 0.3);
+}
+
+#[test]
+fn two_robots_two_sources_at_different_heights_give_no_ghosts() {
+    let mut c = Coordinator::new(several()).unwrap();
+    let bases = [Point3::new(3.0, -1.0, 0.0), Point3::new(-1.0, 3.0, 0.0)];
+    let mut rs = robots(&mut c, &bases);
+    let s1 = Point3::new(0.8, 0.6, 1.1);
+    let s2 = Point3::new(-0.6, -0.4, 1.8);
+    let truths = [s1, s2];
+    // Both talk at once from the start: the pairing must come from geometry.
+    let both = |i: usize, _t: f64| vec![(i as u64 * 7 + 1, s1), (i as u64 * 7 + 2, s2)];
+    let est = run(&mut c, &mut rs, 0.0, 6.0, both);
+    let (ids, worst) = score(&est, &truths);
+    println!("two robots: ids per source {ids:?}, worst distance {worst:.3} m, {} estimates", est.len());
+    assert_eq!(ids.len(), 2, "{ids:?}");
+    assert!(ids.values().all(|v| v.len() == 1), "{ids:?}");
+    assert!(worst < 0.35, "a ghost: an estimate {worst:.2} m from every source");
+}
+
+#[test]
+fn one_source_is_still_one_source() {
+    let mut c = Coordinator::new(several()).unwrap();
+    let bases = [Point3::new(4.0, 0.0, 0.0), Point3::new(0.0, 4.0, 0.0)];
+    let mut rs = robots(&mut c, &bases);
+    let s = Point3::new(0.5, 0.5, 1.3);
+    let est = run(&mut c, &mut rs, 0.0, 5.0, |i, _| vec![(i as u64 + 4, s)]);
+    let (ids, worst) = score(&est, &[s]);
+    assert_eq!(ids[&0].len(), 1, "{ids:?}");
+    assert!(worst < 0.3);
+    assert_eq!(c.latest_estimates().len(), 1);
+}
