@@ -95,6 +95,10 @@ pub struct Coordinator {
     sound_map: Option<SoundMap>,
     /// The latest estimate of each source (several sources).
     latest_by_source: BTreeMap<u64, Estimate>,
+    /// The source active positioning serves; 0: all (several sources).
+    focus: u64,
+    /// Which source(s) the planning cycle under way serves, for its commands.
+    serving: Option<String>,
     positioning: Positioning,
     /// Messages for robots' streams, sent by the shell before the batch's acknowledgements.
     outbox: Vec<Outgoing>,
@@ -110,6 +114,8 @@ impl Coordinator {
             sound_map: (config.sources.max_sources > 1)
                 .then(|| SoundMap::new(config.sources.clone(), config.tracking.clone())),
             latest_by_source: BTreeMap::new(),
+            focus: 0,
+            serving: None,
             positioning: Positioning::new(&config)?,
             config,
             robots: BTreeMap::new(),
@@ -420,15 +426,58 @@ impl Coordinator {
             self.latest_by_source.insert(e.source_id, e.clone());
         }
         self.counters.estimates += estimates.len() as u64;
-        // The primary source: live the longest (the map lists sources in birth order).
-        let primary = live.iter().find_map(|id| estimates.iter().find(|e| e.source_id == *id)).cloned();
-        if let Some(p) = primary {
-            self.last_estimate = Some(p.clone());
-            if self.positioning.due(now) {
-                self.reposition(now, &p);
-            }
+        // The latest estimate: of the source followed longest (the map lists them in birth order).
+        if let Some(first) = live.iter().find_map(|id| estimates.iter().find(|e| e.source_id == *id)) {
+            self.last_estimate = Some(first.clone());
+        }
+        if let Some((served, why)) = self.served(&estimates)
+            && self.positioning.due(now)
+        {
+            self.serving = Some(format!("for source {} ({why})", served.source_id));
+            let served = served.clone();
+            self.reposition(now, &served);
+            self.serving = None;
         }
         estimates
+    }
+
+    /// The estimate active positioning serves in this batch, and why: the focus
+    /// source, or with focus 0 ("all") the source whose geometry is worst
+    /// (largest GDOP), so that each cycle improves the worst-placed source.
+    fn served<'e>(&self, estimates: &'e [Estimate]) -> Option<(&'e Estimate, String)> {
+        if self.focus != 0 {
+            let e = estimates.iter().find(|e| e.source_id == self.focus)?;
+            return Some((e, "the operator's focus".into()));
+        }
+        let worst = estimates.iter().max_by(|a, b| a.gdop().total_cmp(&b.gdop()))?;
+        let why = match estimates.len() {
+            1 => "the only source heard".to_owned(),
+            n => format!("the worst geometry of {n} sources, GDOP {:.1}", worst.gdop()),
+        };
+        Some((worst, why))
+    }
+
+    /// Chooses the source active positioning serves: an id the sound map gave,
+    /// or 0 for all. Returns the focus now in force.
+    pub fn set_focus(&mut self, source_id: u64) -> Result<u64, ServerError> {
+        let known = source_id == 0 || self.sound_map.as_ref().is_some_and(|m| m.has_given(source_id));
+        if !known {
+            return Err(ValidationError::new(
+                "source_id",
+                Problem::OutOfRange {
+                    value: source_id as f64,
+                    range: "a source id the coordinator gave, or 0",
+                },
+            )
+            .into());
+        }
+        self.focus = source_id;
+        Ok(source_id)
+    }
+
+    /// The source active positioning serves; 0: all.
+    pub fn focus(&self) -> u64 {
+        self.focus
     }
 
     /// Each live robot's observation nearest `t` within the alignment window

@@ -65,7 +65,10 @@ impl Coordinator {
                 ));
                 continue;
             }
-            let command = self.positioning.command(now, goal, estimate.theta_deg());
+            let mut command = self.positioning.command(now, goal, estimate.theta_deg());
+            if let Some(serving) = &self.serving {
+                command.detail = format!("{serving}: {}", command.detail);
+            }
             entry.commands.issue(command.clone());
             self.outbox.push(Outgoing {
                 conn,

@@ -70,6 +70,7 @@ struct MapSource {
 #[derive(Clone, Copy, Debug)]
 struct Remembered {
     id: u64,
+    first_heard: Stamp,
     position_in_map: Point3<f64>,
     last_heard: Stamp,
 }
@@ -217,6 +218,7 @@ impl SoundMap {
                 if let Some(e) = s.tracker.estimate() {
                     self.remembered.push(Remembered {
                         id: s.id,
+                        first_heard: s.first_heard,
                         position_in_map: e.position_in_map,
                         last_heard: s.last_heard,
                     });
@@ -353,6 +355,7 @@ impl SoundMap {
             return;
         }
         let Some(point) = tri.solution().map(|s| s.source_in_map) else { return };
+        let mut first_heard = newest;
         let reuse = self
             .remembered
             .iter()
@@ -363,7 +366,11 @@ impl SoundMap {
             })
             .map(|(i, _)| i);
         let id = match reuse {
-            Some(i) => self.remembered.swap_remove(i).id,
+            Some(i) => {
+                let r = self.remembered.swap_remove(i);
+                first_heard = r.first_heard;
+                r.id
+            }
             None => {
                 self.next_id += 1;
                 self.next_id - 1
@@ -374,7 +381,7 @@ impl SoundMap {
         }
         self.births += 1;
         tracing::debug!(source = id, x = point.x, y = point.y, z = point.z, "source born");
-        self.sources.push(MapSource { id, tracker, first_heard: newest, last_heard: newest });
+        self.sources.push(MapSource { id, tracker, first_heard, last_heard: newest });
     }
 
     /// What each live source looks like at `stamp`: the aligned rays labelled
@@ -412,6 +419,16 @@ impl SoundMap {
             });
         }
         out
+    }
+
+    /// Whether `id` was ever given to a source.
+    pub fn has_given(&self, id: u64) -> bool {
+        id != 0 && id < self.next_id
+    }
+
+    /// Lost sources still remembered for their ids: (id, last position, first heard, last heard).
+    pub fn remembered(&self) -> impl Iterator<Item = (u64, Point3<f64>, Stamp, Stamp)> + '_ {
+        self.remembered.iter().map(|r| (r.id, r.position_in_map, r.first_heard, r.last_heard))
     }
 
     /// Live sources: (id, first heard, last heard, filtered state).

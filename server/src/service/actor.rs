@@ -94,6 +94,13 @@ pub enum Request {
         /// Where the new settings (or the error) go.
         reply: oneshot::Sender<Result<PositioningSettings, ServerError>>,
     },
+    /// Choose the source active positioning serves (0: all).
+    SetFocus {
+        /// The source.
+        source_id: u64,
+        /// The focus in force, or why not.
+        reply: oneshot::Sender<Result<u64, ServerError>>,
+    },
     /// Housekeeping (liveness) is due.
     Tick,
     /// Finish the requests already queued, then stop.
@@ -288,6 +295,13 @@ impl Actor {
             Request::GetState { reply } => {
                 let _ = reply.send(self.snapshot(now));
             }
+            Request::SetFocus { source_id, reply } => {
+                let result = self.coordinator.set_focus(source_id);
+                if result.is_ok() {
+                    tracing::info!(source_id, "active positioning focus set (0: all sources)");
+                }
+                let _ = reply.send(result);
+            }
             Request::SetActivePositioning { update, reply } => {
                 let result = self.coordinator.set_active_positioning(now, &update);
                 if let Ok(s) = &result {
@@ -407,6 +421,33 @@ impl Actor {
             sources: self.coordinator.latest_estimates().into_iter().map(estimate_to_wire).collect(),
             active_positioning: Some(self.coordinator.positioning().to_wire()),
             planner: self.coordinator.planner_status().map(PlannerStatus::to_wire),
+            focus_source_id: self.coordinator.focus(),
+            sound_map: self.coordinator.sound_map().map(mapped_sources).unwrap_or_default(),
         }
     }
+}
+
+/// The sound map as the Monitoring service shows it: live sources, then remembered ones.
+fn mapped_sources(map: &crate::coordinator::sound_map::SoundMap) -> Vec<wire::MappedSource> {
+    let vec3 = |p: nalgebra::Point3<f64>| soundmap_proto::wire::Vec3 { x: p.x, y: p.y, z: p.z };
+    let live = map.sources().filter_map(|(id, first, last, e)| {
+        let e = e?;
+        Some(wire::MappedSource {
+            source_id: id,
+            position_m: Some(vec3(e.position_in_map)),
+            covariance_m2: e.position_covariance().transpose().iter().copied().collect(),
+            first_heard_ns: first.as_ns(),
+            last_heard_ns: last.as_ns(),
+            live: true,
+        })
+    });
+    let remembered = map.remembered().map(|(id, p, first, last)| wire::MappedSource {
+        source_id: id,
+        position_m: Some(vec3(p)),
+        covariance_m2: vec![],
+        first_heard_ns: first.as_ns(),
+        last_heard_ns: last.as_ns(),
+        live: false,
+    });
+    live.chain(remembered).collect()
 }

@@ -91,4 +91,18 @@ impl Monitoring for MonitoringService {
         let settings = answer.await.map_err(|_| status::shutting_down())?.map_err(|e| to_status(&e))?;
         Ok(Response::new(settings.to_wire()))
     }
+
+    async fn set_focus(
+        &self,
+        request: Request<wire::SetFocusRequest>,
+    ) -> Result<Response<wire::Focus>, Status> {
+        let source_id = request.get_ref().source_id;
+        let (reply, answer) = oneshot::channel();
+        self.requests
+            .send(actor::Request::SetFocus { source_id, reply })
+            .await
+            .map_err(|_| status::shutting_down())?;
+        let source_id = answer.await.map_err(|_| status::shutting_down())?.map_err(|e| to_status(&e))?;
+        Ok(Response::new(wire::Focus { source_id }))
+    }
 }
