@@ -12,9 +12,7 @@ use nalgebra::Point3;
 /// Everything that can go wrong in `soundmap-sim`.
 ///
 /// Errors of other crates are wrapped with their source kept (`#[from]` or
-/// `#[source]`), not flattened to text. The text variants [`SimError::Io`],
-/// [`SimError::Agent`] and [`SimError::Coordinator`] remain for the code that
-/// has not moved to the typed ones yet.
+/// `#[source]`), not flattened to text.
 #[derive(Debug, thiserror::Error)]
 pub enum SimError {
     /// A configuration value is out of its valid range.
@@ -103,26 +101,17 @@ pub enum SimError {
     },
     /// The robot agent library failed (array, audio, poses, link, pipeline).
     #[error("agent: {0}")]
-    AgentLib(#[from] soundmap_agent::AgentError),
+    Agent(#[from] soundmap_agent::AgentError),
     /// The coordinator library failed (configuration, start, stop).
     #[error("coordinator: {0}")]
     Server(#[from] soundmap_server::ServerError),
     /// A value failed the shared domain types' validation (e.g. a robot id).
     #[error(transparent)]
     Validation(#[from] soundmap_proto::ValidationError),
-    /// A file could not be read or written (text form; new code uses
-    /// [`SimError::File`], [`SimError::Wav`], [`SimError::Json`] or [`SimError::Plot`]).
-    #[error("{path}: {message}")]
-    Io {
-        /// The file or directory.
-        path: String,
-        /// The underlying error, as text.
-        message: String,
-    },
-    /// The robot agent library failed (text form; new code uses [`SimError::AgentLib`]).
-    #[error("agent: {0}")]
-    Agent(String),
-    /// The coordinator failed (text form; new code uses [`SimError::Server`]).
+    /// The coordinator ran but the run is not a correct one: it refused some
+    /// of the agents' messages (stream errors), or the recorder lost
+    /// estimates. Not another crate's error: failures of the coordinator
+    /// library itself are [`SimError::Server`].
     #[error("coordinator: {0}")]
     Coordinator(String),
     /// A replay's inputs do not fit together (lengths, time ranges, gaps).
@@ -134,11 +123,6 @@ impl SimError {
     /// A [`SimError::File`]: `source` while reading or writing `path`.
     pub fn file(path: impl Into<PathBuf>, source: std::io::Error) -> Self {
         SimError::File { path: path.into(), source }
-    }
-
-    /// An I/O error about `path`, as text (see [`SimError::file`]).
-    pub fn io(path: impl std::fmt::Display, e: impl std::fmt::Display) -> Self {
-        SimError::Io { path: path.to_string(), message: e.to_string() }
     }
 
     /// Shorthand for [`SimError::InvalidConfig`].

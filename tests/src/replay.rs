@@ -155,7 +155,7 @@ impl Replayed {
     }
 
     fn advance(&mut self) -> Result<(), SimError> {
-        self.next = self.audio.next_block(&mut self.hop).map_err(|e| SimError::Agent(e.to_string()))?;
+        self.next = self.audio.next_block(&mut self.hop)?;
         Ok(())
     }
 }
@@ -168,8 +168,8 @@ impl Replayed {
         pipeline_config: &PipelineConfig,
         max_pose_gap_s: f64,
     ) -> Result<(Replayed, RobotPath), SimError> {
-        let array = ArrayGeometry::load(&r.array).map_err(agent)?;
-        let pipeline = Pipeline::new(&array, pipeline_config).map_err(agent)?;
+        let array = ArrayGeometry::load(&r.array)?;
+        let pipeline = Pipeline::new(&array, pipeline_config)?;
         let start = SIM_EPOCH.plus_secs(r.start_s);
         let options = BlockOptions {
             hop_len: pipeline.hop_len(),
@@ -178,7 +178,7 @@ impl Replayed {
             channel_map: None,
             start,
         };
-        let audio = audio::open(&AudioInput::Wav { path: r.audio.clone() }, &options).map_err(agent)?;
+        let audio = audio::open(&AudioInput::Wav { path: r.audio.clone() }, &options)?;
         let list = read_tum(&r.poses, PoseTimeMapping::new(0.0, SIM_EPOCH))?;
         if list.is_empty() {
             return Err(SimError::Replay(format!("{}: no poses", r.poses.display())));
@@ -262,19 +262,15 @@ fn score(e: &wire::SourceEstimate, robots: &[Replayed], truth: Option<&PoseBuffe
     row_of(e, SIM_EPOCH, truth_at, if truth_at.is_some() { &arrays } else { &[] })
 }
 
-fn agent(e: impl std::fmt::Display) -> SimError {
-    SimError::Agent(e.to_string())
-}
-
 fn load_poses(path: &std::path::Path, max_gap_s: f64) -> Result<(Vec<StampedPose>, PoseBuffer), SimError> {
-    let poses = read_tum(path, PoseTimeMapping::new(0.0, SIM_EPOCH)).map_err(agent)?;
+    let poses = read_tum(path, PoseTimeMapping::new(0.0, SIM_EPOCH))?;
     if poses.is_empty() {
         return Err(SimError::Replay(format!("{}: no poses", path.display())));
     }
     let config = PoseBufferConfig { capacity: poses.len().max(1), max_gap_s, ..PoseBufferConfig::default() };
-    let mut buffer = PoseBuffer::new(path.display().to_string(), config).map_err(agent)?;
+    let mut buffer = PoseBuffer::new(path.display().to_string(), config)?;
     for p in &poses {
-        buffer.push(p.clone()).map_err(agent)?;
+        buffer.push(p.clone())?;
     }
     Ok((poses, buffer))
 }
@@ -285,17 +281,17 @@ pub fn replay(args: &ReplayArgs) -> Result<RunRecord, SimError> {
         .worker_threads(2)
         .enable_all()
         .build()
-        .map_err(|e| SimError::io("<tokio runtime>", e))?;
+        .map_err(SimError::Runtime)?;
     runtime.block_on(replay_async(args))
 }
 
 async fn replay_async(args: &ReplayArgs) -> Result<RunRecord, SimError> {
     let pipeline_config = match &args.pipeline {
-        Some(p) => soundmap_agent::config::load_pipeline(p).map_err(agent)?,
+        Some(p) => soundmap_agent::config::load_pipeline(p)?,
         None => PipelineConfig::default(),
     };
     let coordinator = match &args.coordinator_config {
-        Some(p) => CoordinatorConfig::from_file(p).map_err(|e| SimError::Coordinator(e.to_string()))?,
+        Some(p) => CoordinatorConfig::from_file(p)?,
         None => CoordinatorConfig::default(),
     };
     let mut robots = Vec::new();

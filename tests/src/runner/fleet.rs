@@ -34,20 +34,15 @@ impl Fleet {
         config.liveness.tick_ms = 0;
         config.output.estimates_jsonl = None;
         let clock = ManualClock::new(t0);
-        let listener =
-            tokio::net::TcpListener::bind("127.0.0.1:0").await.map_err(|e| SimError::io("127.0.0.1:0", e))?;
-        let coordinator = service::start(config, Arc::new(clock.clone()), listener)
+        let listener = tokio::net::TcpListener::bind("127.0.0.1:0")
             .await
-            .map_err(|e| SimError::Coordinator(e.to_string()))?;
+            .map_err(|source| SimError::Net { addr: "127.0.0.1:0".into(), source })?;
+        let coordinator = service::start(config, Arc::new(clock.clone()), listener).await?;
         let estimates = coordinator.subscribe();
         let endpoint = format!("http://{}", coordinator.local_addr);
         let mut links = Vec::with_capacity(hellos.len());
         for hello in hellos {
-            links.push(
-                LinkClient::connect(&endpoint, hello, None)
-                    .await
-                    .map_err(|e| SimError::Agent(e.to_string()))?,
-            );
+            links.push(LinkClient::connect(&endpoint, hello, None).await?);
         }
         Ok(Fleet { coordinator, clock, links, estimates })
     }
@@ -65,8 +60,8 @@ impl Fleet {
         obs: Observation,
     ) -> Result<Vec<CoordinatorEvent>, SimError> {
         let link = &mut self.links[robot];
-        let seq = link.send_observation(obs).await.map_err(|e| SimError::Agent(e.to_string()))?;
-        link.wait_acked(seq).await.map_err(|e| SimError::Agent(e.to_string()))?;
+        let seq = link.send_observation(obs).await?;
+        link.wait_acked(seq).await?;
         let mut events = Vec::new();
         while let Some(e) = link.try_event() {
             events.push(e);
@@ -76,12 +71,12 @@ impl Fleet {
 
     /// Answers a command.
     pub async fn command_ack(&mut self, robot: usize, ack: &CommandAck) -> Result<(), SimError> {
-        self.links[robot].send_command_ack(ack).await.map_err(|e| SimError::Agent(e.to_string()))
+        Ok(self.links[robot].send_command_ack(ack).await?)
     }
 
     /// Reports a command's progress.
     pub async fn command_progress(&mut self, robot: usize, p: &CommandProgress) -> Result<(), SimError> {
-        self.links[robot].send_command_progress(p).await.map_err(|e| SimError::Agent(e.to_string()))
+        Ok(self.links[robot].send_command_progress(p).await?)
     }
 
     /// Estimates published since the last call.
@@ -107,6 +102,6 @@ impl Fleet {
     /// Closes the links and stops the coordinator.
     pub async fn shutdown(self) -> Result<(), SimError> {
         drop(self.links);
-        self.coordinator.shutdown().await.map_err(|e| SimError::Coordinator(e.to_string()))
+        Ok(self.coordinator.shutdown().await?)
     }
 }

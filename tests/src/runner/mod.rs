@@ -57,7 +57,7 @@ pub fn run(scenario: &Scenario, options: &RunOptions) -> Result<RunRecord, SimEr
         .thread_name("soundmap-sim")
         .enable_all()
         .build()
-        .map_err(|e| SimError::io("<tokio runtime>", e))?;
+        .map_err(SimError::Runtime)?;
     runtime.block_on(run_async(scenario, options))
 }
 
@@ -165,7 +165,7 @@ impl<'a> Sim<'a> {
         let fleet = Fleet::start(config, &hellos, SIM_EPOCH).await?;
         let recorders = match &options.record_dir {
             Some(dir) => {
-                std::fs::create_dir_all(dir).map_err(|e| SimError::io(dir.display(), e))?;
+                std::fs::create_dir_all(dir).map_err(|e| SimError::file(dir, e))?;
                 Some(
                     robots
                         .iter()
@@ -336,7 +336,7 @@ fn write_replay_command(
     }
     cmd.push_str(&format!(" \\\n  --truth {}/source.tum --out OUT\n", dir.display()));
     let path = dir.join("replay-command.txt");
-    std::fs::write(&path, cmd).map_err(|e| SimError::io(path.display(), e))
+    std::fs::write(&path, cmd).map_err(|e| SimError::file(path, e))
 }
 
 /// Renders and localizes one block for every robot, two at a time in parallel.

@@ -51,45 +51,45 @@ impl RobotRecorder {
             bits_per_sample: 32,
             sample_format: hound::SampleFormat::Float,
         };
-        let wav =
-            hound::WavWriter::create(&wav_path, spec).map_err(|e| SimError::io(wav_path.display(), e))?;
-        let mut tum =
-            BufWriter::new(File::create(&tum_path).map_err(|e| SimError::io(tum_path.display(), e))?);
+        let wav = hound::WavWriter::create(&wav_path, spec)
+            .map_err(|source| SimError::Wav { path: wav_path.clone(), source })?;
+        let mut tum = BufWriter::new(File::create(&tum_path).map_err(|e| SimError::file(&tum_path, e))?);
         writeln!(
             tum,
             "# {id}: map_from_base as the agent saw it (SLAM), at each DoA stamp; t in s from the start"
         )
-        .map_err(|e| SimError::io(tum_path.display(), e))?;
+        .map_err(|e| SimError::file(&tum_path, e))?;
         Ok(RobotRecorder { wav, tum, wav_path, tum_path })
     }
 
     /// Appends interleaved samples.
     pub fn audio(&mut self, interleaved: &[f32]) -> Result<(), SimError> {
         for s in interleaved {
-            self.wav.write_sample(*s).map_err(|e| SimError::io(self.wav_path.display(), e))?;
+            self.wav
+                .write_sample(*s)
+                .map_err(|source| SimError::Wav { path: self.wav_path.clone(), source })?;
         }
         Ok(())
     }
 
     /// Appends a pose at `stamp` (relative to `t0`).
     pub fn pose(&mut self, stamp: Stamp, t0: Stamp, pose: &Isometry3<f64>) -> Result<(), SimError> {
-        writeln!(self.tum, "{}", tum_line(stamp - t0, pose))
-            .map_err(|e| SimError::io(self.tum_path.display(), e))
+        writeln!(self.tum, "{}", tum_line(stamp - t0, pose)).map_err(|e| SimError::file(&self.tum_path, e))
     }
 
     /// Flushes both files.
     pub fn finish(self) -> Result<(), SimError> {
         let wav_path = self.wav_path.clone();
-        self.wav.finalize().map_err(|e| SimError::io(wav_path.display(), e))?;
+        self.wav.finalize().map_err(|source| SimError::Wav { path: wav_path, source })?;
         let mut tum = self.tum;
-        tum.flush().map_err(|e| SimError::io(self.tum_path.display(), e))
+        tum.flush().map_err(|e| SimError::file(&self.tum_path, e))
     }
 }
 
 /// Writes the true source path as TUM (identity orientation).
 pub fn write_source_tum(path: &Path, samples: &[(i64, Point3<f64>)]) -> Result<(), SimError> {
-    let mut out = BufWriter::new(File::create(path).map_err(|e| SimError::io(path.display(), e))?);
-    let io = |e: std::io::Error| SimError::io(path.display(), e);
+    let mut out = BufWriter::new(File::create(path).map_err(|e| SimError::file(path, e))?);
+    let io = |e: std::io::Error| SimError::file(path, e);
     writeln!(out, "# true source position; t in s from the start").map_err(io)?;
     for (ns, p) in samples {
         writeln!(out, "{} {} {} {} 0 0 0 1", tum_time(*ns), p.x, p.y, p.z).map_err(io)?;

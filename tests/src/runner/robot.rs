@@ -168,8 +168,8 @@ impl SimRobot {
         hop_s: f64,
         epoch: Stamp,
     ) -> Result<Self, SimError> {
-        let array = ArrayGeometry::load(&spec.array).map_err(|e| SimError::Agent(e.to_string()))?;
-        let pipeline = Pipeline::new(&array, pipeline_config).map_err(|e| SimError::Agent(e.to_string()))?;
+        let array = ArrayGeometry::load(&spec.array)?;
+        let pipeline = Pipeline::new(&array, pipeline_config)?;
         let robot_seed = seed ^ (0x9E37_79B9_7F4A_7C15u64.wrapping_mul(index as u64 + 1));
         let mut cfg = ArrayConfig::new(array.channels(), robot_seed);
         cfg.block_len = block_len;
