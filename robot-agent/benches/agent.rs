@@ -80,7 +80,7 @@ fn measure(array: &ArrayGeometry, config: &PipelineConfig, a: &Audio) -> Measure
                 if h % hops_per_segment >= 3
                     && let Some(s) = r.potentials.first()
                 {
-                    errors.push(synth::angle_deg(&s.direction, &a.truth[h / hops_per_segment]));
+                    errors.push(synth::angle_deg(&s.direction_in_array, &a.truth[h / hops_per_segment]));
                 }
                 ids.extend(r.tracks.iter().filter(|t| t.confirmed).map(|t| t.track_id));
             }

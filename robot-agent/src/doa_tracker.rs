@@ -49,7 +49,7 @@ pub struct TrackedDirection {
     /// Stable id, monotonic over the tracker's life, never reused.
     pub track_id: u64,
     /// Filtered direction, unit vector, array frame.
-    pub direction: Unit<Vector3<f64>>,
+    pub direction_in_array: Unit<Vector3<f64>>,
     /// How active the source is, in [0, 1] (smoothed detection rate).
     pub activity: f64,
     /// 1-σ angular uncertainty per tangent axis, radians.
@@ -66,7 +66,7 @@ impl TrackedDirection {
         let sigma = self.angular_sigma_rad.hypot(sigma_floor_rad.max(0.0));
         soundmap_proto::TrackedDoa {
             track_id: self.track_id,
-            direction_in_array: self.direction,
+            direction_in_array: self.direction_in_array,
             activity: self.activity.clamp(0.0, 1.0),
             angular_sigma_rad: (sigma.is_finite() && sigma > 0.0).then_some(sigma.min(std::f64::consts::PI)),
         }
@@ -216,7 +216,7 @@ impl DoaTracker {
             let sigma = t.kf.sigma().max(self.config.min_sigma_deg.to_radians());
             out.push(TrackedDirection {
                 track_id: t.id,
-                direction: t.kf.direction(),
+                direction_in_array: t.kf.direction(),
                 activity: t.activity,
                 angular_sigma_rad: sigma,
                 confirmed: t.confirmed,
@@ -235,7 +235,7 @@ impl DoaTracker {
                 if p.energy < cfg.update_min_coherence {
                     continue;
                 }
-                let z = p.direction.into_inner();
+                let z = p.direction_in_array.into_inner();
                 let m2 = t.kf.mahalanobis2(&z, t.r2 * self.inflation);
                 if (m2 <= cfg.gate_chi2 || t.kf.d.angle(&z) <= min_gate)
                     && self.pairs.len() < self.pairs.capacity()
@@ -256,7 +256,7 @@ impl DoaTracker {
             self.used[pi] = true;
             updated[ti] = true;
             let t = &mut self.tracks[ti];
-            let z = potentials[pi].direction.into_inner();
+            let z = potentials[pi].direction_in_array.into_inner();
             // Learn the measurement variance from the innovation (clipped
             // against outliers): E|y|²/2 = r² + tr(P_θθ)/2 per axis.
             let y = t.kf.residual(&z);
@@ -289,7 +289,7 @@ impl DoaTracker {
             elapsed < window && c.hits + (window - elapsed) as u32 >= cfg.birth_min_hits
         });
         for (pi, p) in potentials.iter().enumerate() {
-            let z = p.direction.into_inner();
+            let z = p.direction_in_array.into_inner();
             if self.used.get(pi).copied().unwrap_or(true) || p.energy < self.birth_threshold(&z) {
                 continue;
             }

@@ -73,9 +73,9 @@ fn hop_line(r: &FrameResult, options: LineOptions) -> HopLine {
             .filter(|t| options.all_tracks || t.confirmed)
             .map(|t| SourceLine {
                 id: t.track_id,
-                x: t.direction.x,
-                y: t.direction.y,
-                z: t.direction.z,
+                x: t.direction_in_array.x,
+                y: t.direction_in_array.y,
+                z: t.direction_in_array.z,
                 activity: t.activity,
             })
             .collect(),
@@ -83,9 +83,9 @@ fn hop_line(r: &FrameResult, options: LineOptions) -> HopLine {
             r.potentials
                 .iter()
                 .map(|p| PotentialLine {
-                    x: p.direction.x,
-                    y: p.direction.y,
-                    z: p.direction.z,
+                    x: p.direction_in_array.x,
+                    y: p.direction_in_array.y,
+                    z: p.direction_in_array.z,
                     energy: p.energy,
                 })
                 .collect()

@@ -129,7 +129,7 @@ impl Default for SrpConfig {
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct PotentialSource {
     /// Unit vector toward the peak, array frame.
-    pub direction: Unit<Vector3<f64>>,
+    pub direction_in_array: Unit<Vector3<f64>>,
     /// PHAT coherence at the peak: 1 for a noise-free plane wave, ≈ 0 for noise.
     pub energy: f64,
 }
@@ -366,7 +366,7 @@ impl Srp {
             } else {
                 (self.region.clamp(grid_dir), grid_coherence)
             };
-            out.push(PotentialSource { direction, energy });
+            out.push(PotentialSource { direction_in_array: direction, energy });
             self.found.push(direction.into_inner());
             self.found_refined.push(refine);
             if out.len() < self.config.max_sources {

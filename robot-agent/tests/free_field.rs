@@ -32,7 +32,7 @@ fn errors(
         p.reset();
         let frames = synth::run(&mut p, &synth::interleave(&x, 0.05));
         for f in frames.iter().skip(2).step_by(2) {
-            out.push(synth::angle_deg(&f.potentials[0].direction, &d));
+            out.push(synth::angle_deg(&f.potentials[0].direction_in_array, &d));
         }
     }
     out
@@ -88,7 +88,7 @@ fn noise_free_plane_wave_has_unit_coherence_and_exact_direction() {
     let mut p = Pipeline::new(&array, &config).unwrap();
     let frames = synth::run(&mut p, &synth::interleave(&x, 0.05));
     let f = &frames[10].potentials[0];
-    let err = synth::angle_deg(&f.direction, &d);
+    let err = synth::angle_deg(&f.direction_in_array, &d);
     println!("noise-free: error {err:.4}°, coherence {:.3}", f.energy);
     assert!(err < 0.1, "{err}");
     assert!(f.energy > 0.9, "{}", f.energy);

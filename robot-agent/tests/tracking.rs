@@ -47,7 +47,7 @@ fn a_static_source_is_tracked_with_one_id_at_every_snr() {
             assert!(frames[first_confirmed..].iter().all(|f| f.tracks.len() == 1), "{snr} dB: track lost");
             let settled = &frames[first_confirmed + 25..];
             let errors: Vec<f64> =
-                settled.iter().map(|f| synth::angle_deg(&f.tracks[0].direction, &d)).collect();
+                settled.iter().map(|f| synth::angle_deg(&f.tracks[0].direction_in_array, &d)).collect();
             let sigmas: Vec<f64> =
                 settled.iter().map(|f| f.tracks[0].angular_sigma_rad.to_degrees()).collect();
             let nees: f64 = errors.iter().zip(&sigmas).map(|(e, s)| e * e / (2.0 * s * s)).sum::<f64>()
@@ -90,7 +90,7 @@ fn every_preset_tracks_a_source() {
                 .iter()
                 .skip(confirmed.unwrap_or(frames.len()))
                 .filter_map(|f| f.tracks.first())
-                .map(|t| synth::angle_deg(&t.direction, &d))
+                .map(|t| synth::angle_deg(&t.direction_in_array, &d))
                 .collect();
             let med_e = if errors.is_empty() { f64::NAN } else { synth::stats(&errors).1 };
             println!(
@@ -137,7 +137,7 @@ fn no_track_on(
             let margin = frames
                 .iter()
                 .flat_map(|f| f.potentials.iter())
-                .map(|q| p.tracker().birth_threshold(&q.direction) - q.energy)
+                .map(|q| p.tracker().birth_threshold(&q.direction_in_array) - q.energy)
                 .fold(f64::MAX, f64::min);
             println!(
                 "{name:<22} {kind:<11} seed {seed}: {:.1} s, max peak coherence {max_coherence:.3}, smallest margin to the birth threshold {margin:.3}, tracks {:?}",
@@ -184,7 +184,7 @@ fn a_source_sweeping_at_30_degrees_per_second_keeps_one_id() {
             .map(|f| {
                 assert_eq!(f.tracks.len(), 1, "{snr} dB: track lost or duplicated");
                 // Compare with the source direction at the DoA's stamp.
-                synth::angle_deg(&f.tracks[0].direction, &dir_at(f.stamp.as_secs_f64()))
+                synth::angle_deg(&f.tracks[0].direction_in_array, &dir_at(f.stamp.as_secs_f64()))
             })
             .collect();
         let (mean, median, p95) = synth::stats(&errors);
@@ -217,12 +217,12 @@ fn a_source_swinging_back_and_forth_keeps_one_id() {
     let errors: Vec<f64> = frames[confirmed..]
         .iter()
         .filter_map(|f| f.tracks.first())
-        .map(|t| synth::angle_deg(&t.direction, &dir_at(0.0)).min(360.0))
+        .map(|t| synth::angle_deg(&t.direction_in_array, &dir_at(0.0)).min(360.0))
         .collect();
     let errors_at_stamp: Vec<f64> = frames[confirmed..]
         .iter()
         .filter(|f| !f.tracks.is_empty())
-        .map(|f| synth::angle_deg(&f.tracks[0].direction, &dir_at(f.stamp.as_secs_f64())))
+        .map(|f| synth::angle_deg(&f.tracks[0].direction_in_array, &dir_at(f.stamp.as_secs_f64())))
         .collect();
     let (mean, median, p95) = synth::stats(&errors_at_stamp);
     println!(
@@ -254,12 +254,16 @@ fn two_sources_get_two_tracks() {
         ids(&frames),
         confirmed
             .iter()
-            .map(|t| (t.track_id, synth::angle_deg(&t.direction, &a).min(synth::angle_deg(&t.direction, &b))))
+            .map(|t| (
+                t.track_id,
+                synth::angle_deg(&t.direction_in_array, &a).min(synth::angle_deg(&t.direction_in_array, &b))
+            ))
             .collect::<Vec<_>>()
     );
     assert_eq!(confirmed.len(), 2);
     for s in [a, b] {
-        let e = confirmed.iter().map(|t| synth::angle_deg(&t.direction, &s)).fold(f64::MAX, f64::min);
+        let e =
+            confirmed.iter().map(|t| synth::angle_deg(&t.direction_in_array, &s)).fold(f64::MAX, f64::min);
         assert!(e < 1.0, "source {s:?}: nearest track {e}°");
     }
     assert_eq!(ids(&frames).len(), 2, "ids {:?}", ids(&frames));

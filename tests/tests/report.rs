@@ -32,12 +32,12 @@ fn row(t_s: f64, theta_deg: f64, rse_m: f64) -> TimelineRow {
         theta_deg: theta_deg + 1.0,
         true_theta_deg: Some(theta_deg),
         gdop: 1.5,
-        estimate: Some(truth + nalgebra::Vector3::new(rse_m, 0.0, 0.0)),
-        triangulation: None,
+        estimate_in_map: Some(truth + nalgebra::Vector3::new(rse_m, 0.0, 0.0)),
+        triangulation_in_map: None,
         trusted: true,
         method: "ray_pair".into(),
         robots: vec!["r1".into(), "r2".into()],
-        truth: Some(truth),
+        truth_in_map: Some(truth),
         covariance: None,
     }
 }
@@ -105,10 +105,10 @@ fn close(v: &Value, expected: f64) -> bool {
 fn timeline_has_the_columns_and_values_of_the_rows() {
     let mut rows = vec![row(0.0, 30.0, 0.1), row(0.5, 90.0, 0.2), row(1.0, 100.0, 0.0)];
     rows[1].gdop = f64::INFINITY;
-    rows[1].triangulation = Some(Point3::new(2.0, 1.3, 1.2));
+    rows[1].triangulation_in_map = Some(Point3::new(2.0, 1.3, 1.2));
     rows[1].method = "kalman_filter".into();
     rows[1].trusted = false;
-    rows[2].estimate = None;
+    rows[2].estimate_in_map = None;
     let dir = out_dir("timeline");
     write_reports(&record(rows, 2.0), &dir).unwrap();
 
@@ -169,7 +169,7 @@ fn a_record_without_truth_has_empty_rse_and_null_statistics() {
         .map(|(t, theta)| TimelineRow {
             distances_m: vec![],
             true_theta_deg: None,
-            truth: None,
+            truth_in_map: None,
             covariance: None,
             ..row(t, theta - 1.0, 0.0)
         })
@@ -225,8 +225,8 @@ fn theta_bins_match_a_hand_computation() {
     // (true θ, RSE): bin 0 gets 0.1 and 0.3; bin 3 gets 1.0; θ = 180 goes to the last bin.
     let mut rows = vec![row(0.0, 10.0, 0.1), row(0.5, 14.0, 0.3), row(1.0, 50.0, 1.0), row(1.5, 180.0, 0.4)];
     // The published θ (true + 1°) of row 1 would fall in bin 1: the true θ must be used.
-    rows[0].triangulation = Some(Point3::new(2.0, 1.0, 1.7));
-    rows[1].triangulation = Some(Point3::new(2.0, 1.0, 1.9));
+    rows[0].triangulation_in_map = Some(Point3::new(2.0, 1.0, 1.7));
+    rows[1].triangulation_in_map = Some(Point3::new(2.0, 1.0, 1.9));
     let dir = out_dir("bins");
     write_reports(&record(rows, 2.0), &dir).unwrap();
     let (header, bins) = read_csv(&dir.join("theta_bins.csv"));
@@ -303,7 +303,7 @@ fn time_ratios_weigh_rows_by_capped_time_and_start_at_convergence() {
         [(0.0, 20.0), (0.5, 20.0), (1.0, 60.0), (2.0, 60.0), (3.0, 60.0), (13.0, 150.0), (13.5, 150.0)];
     let mut rows: Vec<TimelineRow> = thetas.iter().map(|(t, th)| row(*t, *th, 0.1)).collect();
     rows[0].trusted = false;
-    rows[0].estimate = Some(Point3::new(7.0, 1.0, 1.2)); // RSE 5 m before convergence
+    rows[0].estimate_in_map = Some(Point3::new(7.0, 1.0, 1.2)); // RSE 5 m before convergence
     let dir = out_dir("time_weights");
     write_reports(&record(rows, 14.0), &dir).unwrap();
     let json = summary_json(&dir);
@@ -368,7 +368,7 @@ fn assert_plots(dir: &Path, stems: &[&str]) {
 fn every_plot_is_written_and_outliers_are_clipped() {
     let mut rows: Vec<TimelineRow> =
         (0..40).map(|k| row(0.25 * k as f64, 30.0 + 3.0 * k as f64, 0.05 * (k % 7) as f64)).collect();
-    rows[20].estimate = Some(Point3::new(60.0, 1.0, 1.2)); // 58 m off: clipped, and outside the map
+    rows[20].estimate_in_map = Some(Point3::new(60.0, 1.0, 1.2)); // 58 m off: clipped, and outside the map
     let dir = out_dir("plots");
     write_reports(&record(rows, 10.0), &dir).unwrap();
     assert_plots(&dir, &PLOT_STEMS);
@@ -472,12 +472,12 @@ fn realistic_run(active: bool) -> RunRecord {
                 theta_deg: theta + noise(),
                 true_theta_deg: Some(theta),
                 gdop: 1.0 / theta.to_radians().sin().max(1e-3),
-                estimate: Some(est),
-                triangulation: Some(tri),
+                estimate_in_map: Some(est),
+                triangulation_in_map: Some(tri),
                 trusted: spread < 0.2,
                 method: "kalman_filter".into(),
                 robots: vec!["r1".into(), "r2".into()],
-                truth: Some(s),
+                truth_in_map: Some(s),
                 covariance: None,
             });
         }

@@ -96,10 +96,10 @@ fn replay_of_a_recording_gives_the_same_estimates() {
     for (a, b) in direct.rows.iter().zip(&replayed.rows) {
         assert!((a.t_s - b.t_s).abs() < 1e-9);
         assert_eq!(a.robots, b.robots);
-        let (pa, pb) = (a.estimate.unwrap(), b.estimate.unwrap());
+        let (pa, pb) = (a.estimate_in_map.unwrap(), b.estimate_in_map.unwrap());
         worst = worst.max((pa - pb).norm());
         // Truth read back from the TUM file matches the scenario's path.
-        assert!((a.truth.unwrap() - b.truth.unwrap()).norm() < 1e-6);
+        assert!((a.truth_in_map.unwrap() - b.truth_in_map.unwrap()).norm() < 1e-6);
     }
     println!("replay vs direct: {} estimates, largest difference {worst:.2e} m", direct.rows.len());
     assert!(worst < 1e-6, "largest difference {worst} m");

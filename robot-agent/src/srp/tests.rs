@@ -97,7 +97,7 @@ fn noise_free_plane_waves_are_found_exactly_on_every_preset() {
         {
             let d = d.normalize();
             let out = localize(&array, &SrpConfig::default(), &spectra(&array, &[d], &[1.0], s as u64));
-            let err = deg(&out[0].direction, &d);
+            let err = deg(&out[0].direction_in_array, &d);
             assert!(err < 0.01, "{name}: error {err}° toward {d:?}");
             assert!((out[0].energy - 1.0).abs() < 1e-3, "{name}: coherence {}", out[0].energy);
         }
@@ -110,8 +110,8 @@ fn second_potential_finds_a_second_source_not_a_sidelobe() {
     let (a, b) = (Vector3::new(0.8, 0.3, 0.52).normalize(), Vector3::new(-0.4, -0.7, 0.6).normalize());
     let out = localize(&array, &SrpConfig::default(), &spectra(&array, &[a, b], &[1.0, 0.7], 9));
     assert_eq!(out.len(), 2);
-    assert!(deg(&out[0].direction, &a) < 0.5, "{:?}", out[0]);
-    assert!(deg(&out[1].direction, &b) < 0.5, "{:?}", out[1]);
+    assert!(deg(&out[0].direction_in_array, &a) < 0.5, "{:?}", out[0]);
+    assert!(deg(&out[1].direction_in_array, &b) < 0.5, "{:?}", out[1]);
     // One source only: the second potential is weak (its sidelobes were projected out).
     let single = localize(&array, &SrpConfig::default(), &spectra(&array, &[a], &[1.0], 9));
     assert!(single[1].energy < 0.1, "{:?}", single[1]);
@@ -133,7 +133,7 @@ fn directional_microphones_still_localize() {
     }
     let d = Vector3::new(0.5, 0.5, 0.7).normalize();
     let out = localize(&array, &SrpConfig::default(), &spectra(&array, &[d], &[1.0], 4));
-    assert!(deg(&out[0].direction, &d) < 0.01);
+    assert!(deg(&out[0].direction_in_array, &d) < 0.01);
     assert!((out[0].energy - 1.0).abs() < 1e-3, "{}", out[0].energy);
 }
 
@@ -182,7 +182,7 @@ proptest! {
         prop_assume!((s.symmetric_eigen().eigenvalues.min() / array.channels() as f64).sqrt() > 0.02);
         let config = SrpConfig { region: Some(RegionConfig { axis: [0.0, 0.0, 1.0], max_angle_deg: 180.0 }), ..SrpConfig::default() };
         let out = localize(&array, &config, &spectra(&array, &[d], &[1.0], seed));
-        prop_assert!(deg(&out[0].direction, &d) < 0.01, "error {}°", deg(&out[0].direction, &d));
+        prop_assert!(deg(&out[0].direction_in_array, &d) < 0.01, "error {}°", deg(&out[0].direction_in_array, &d));
         prop_assert!((out[0].energy - 1.0).abs() < 1e-3);
     }
 }

@@ -84,15 +84,15 @@ pub fn timeline_csv(record: &RunRecord) -> String {
         cells.extend((0..n_d).map(|k| row.distances_m.get(k).map_or_else(String::new, |d| num(*d))));
         cells.push(num(row.theta_deg));
         cells.push(num(row.gdop));
-        point(&mut cells, row.estimate);
-        point(&mut cells, row.truth);
+        point(&mut cells, row.estimate_in_map);
+        point(&mut cells, row.truth_in_map);
         cells.push(opt(row.rse_m()));
         cells.push(opt(row.true_theta_deg));
         cells.push(in_band(theta_for_stats_deg(row), record.theta_band_deg).to_string());
         cells.push(row.trusted.to_string());
         cells.push(text(&row.method));
         cells.push(text(&row.robots.join(";")));
-        point(&mut cells, row.triangulation);
+        point(&mut cells, row.triangulation_in_map);
         cells.push(opt(row.triangulation_rse_m()));
         cells.push(opt(row.nees()));
         let _ = writeln!(out, "{}", cells.join(","));

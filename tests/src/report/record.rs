@@ -21,10 +21,10 @@ pub struct TimelineRow {
     /// GDOP as published (infinite when the geometry gave none).
     pub gdop: f64,
     /// Published position (map frame, m): the coordinator's best estimate.
-    pub estimate: Option<Point3<f64>>,
+    pub estimate_in_map: Option<Point3<f64>>,
     /// The instantaneous triangulation published beside it (the paper's method), when
     /// the best estimate is a filtered one.
-    pub triangulation: Option<Point3<f64>>,
+    pub triangulation_in_map: Option<Point3<f64>>,
     /// Whether the coordinator marked the estimate trusted.
     pub trusted: bool,
     /// How the best estimate was obtained (`ray_pair`, `levenberg_marquardt`, `kalman_filter`, …).
@@ -32,7 +32,7 @@ pub struct TimelineRow {
     /// Robots whose rays contributed.
     pub robots: Vec<String>,
     /// True source position at the estimate's stamp (map frame, m), when known.
-    pub truth: Option<Point3<f64>>,
+    pub truth_in_map: Option<Point3<f64>>,
     /// Covariance published with the best estimate (m², map frame), when there is one.
     pub covariance: Option<Matrix3<f64>>,
 }
@@ -40,7 +40,7 @@ pub struct TimelineRow {
 impl TimelineRow {
     /// Root square error ‖estimate − truth‖ (m), when both exist.
     pub fn rse_m(&self) -> Option<f64> {
-        Some((self.estimate? - self.truth?).norm())
+        Some((self.estimate_in_map? - self.truth_in_map?).norm())
     }
 
     /// Normalized estimation error squared, eᵀ P⁻¹ e with e = estimate − truth and
@@ -48,14 +48,14 @@ impl TimelineRow {
     /// covariance is honest. `None` without truth, covariance, or when P is not
     /// positive definite.
     pub fn nees(&self) -> Option<f64> {
-        let e = self.estimate? - self.truth?;
+        let e = self.estimate_in_map? - self.truth_in_map?;
         let chol = self.covariance?.cholesky()?;
         Some(e.dot(&chol.solve(&e)))
     }
 
     /// RSE of the triangulation beside a filtered estimate (m).
     pub fn triangulation_rse_m(&self) -> Option<f64> {
-        Some((self.triangulation? - self.truth?).norm())
+        Some((self.triangulation_in_map? - self.truth_in_map?).norm())
     }
 }
 

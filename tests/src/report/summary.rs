@@ -164,7 +164,7 @@ impl Summary {
             theta_band_deg: [record.theta_band_deg.0, record.theta_band_deg.1],
             theta_source: d.theta_source,
             estimates: n,
-            estimates_with_position: rows.iter().filter(|r| r.estimate.is_some()).count(),
+            estimates_with_position: rows.iter().filter(|r| r.estimate_in_map.is_some()).count(),
             estimates_with_rse: all.len(),
             estimates_in_band,
             estimates_out_of_band: n - estimates_in_band,
@@ -209,7 +209,7 @@ impl Summary {
 impl TriangulationSummary {
     /// `None` when no row has a triangulation.
     fn new(record: &RunRecord, d: &Derived) -> Option<Self> {
-        let estimates = record.rows.iter().filter(|r| r.triangulation.is_some()).count();
+        let estimates = record.rows.iter().filter(|r| r.triangulation_in_map.is_some()).count();
         if estimates == 0 {
             return None;
         }

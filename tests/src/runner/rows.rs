@@ -66,12 +66,12 @@ pub fn row_of(
         theta_deg: e.theta_deg,
         true_theta_deg: truth.filter(|_| arrays.len() >= 2).map(|s| best_theta_deg(&s, arrays)),
         gdop: if e.gdop > 0.0 { e.gdop } else { f64::INFINITY },
-        estimate: point(&e.position_in_map_m),
-        triangulation,
+        estimate_in_map: point(&e.position_in_map_m),
+        triangulation_in_map: triangulation,
         trusted: e.trusted,
         method: method_name(e.method),
         robots: e.robots.clone(),
-        truth,
+        truth_in_map: truth,
         covariance: e.covariance.as_ref().and_then(soundmap_proto::monitoring::covariance_from_wire),
     }
 }

@@ -48,7 +48,7 @@ pub fn extent(record: &RunRecord) -> (f64, f64, f64, f64) {
         pts.extend(record.source_path.iter().map(|(_, p)| [p.x, p.y]));
     }
     if pts.is_empty() {
-        pts.extend(record.rows.iter().filter_map(|r| r.estimate).map(|p| [p.x, p.y]));
+        pts.extend(record.rows.iter().filter_map(|r| r.estimate_in_map).map(|p| [p.x, p.y]));
     }
     pts.retain(|p| p[0].is_finite() && p[1].is_finite());
     let (mut x0, mut x1, mut y0, mut y1) = (f64::MAX, f64::MIN, f64::MAX, f64::MIN);
@@ -116,8 +116,11 @@ impl Figure for MapFigure<'_> {
         // Estimates under the truth and the robots, so those stay visible.
         let mut outside = 0usize;
         let mut without_truth = 0usize;
-        let estimates =
-            r.rows.iter().zip(&self.derived.rse_m).filter_map(|(row, rse)| Some((row.estimate?, *rse)));
+        let estimates = r
+            .rows
+            .iter()
+            .zip(&self.derived.rse_m)
+            .filter_map(|(row, rse)| Some((row.estimate_in_map?, *rse)));
         let estimates: Vec<_> = estimates.filter(|(p, _)| p.x.is_finite() && p.y.is_finite()).collect();
         // Smaller dots when there are many, so the picture is not one blob.
         let radius = match estimates.len() {
