@@ -119,7 +119,7 @@ fn run_localize(args: &LocalizeArgs) -> Result<()> {
             Some(RawLayout { format, channels, sample_rate_hz })
         }
         (None, None, None) => None,
-        _ => bail!("{}: raw input needs all of --format, --channels and --rate", args.input.display()),
+        _ => bail!("{}: raw input needs --format, --channels and --rate", args.input.display()),
     };
     let input = AudioInput::from_path(&args.input, layout)?;
     let pipeline_config = match &args.pipeline {
