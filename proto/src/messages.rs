@@ -18,6 +18,10 @@ pub const PROTOCOL_VERSION: u32 = 1;
 pub const MAX_DOAS_PER_OBSERVATION: usize = 64;
 /// Longest accepted free-text field, in characters.
 pub const MAX_TEXT_LEN: usize = 256;
+/// Most bands of a spectral signature (`Hello.signature_bands`).
+pub const MAX_SIGNATURE_BANDS: usize = 64;
+/// Accepted range of a signature value, dB.
+pub const SIGNATURE_DB_RANGE: (f32, f32) = (-200.0, 200.0);
 
 /// A robot's microphone array as the coordinator needs it.
 #[derive(Clone, Debug, PartialEq)]
@@ -41,6 +45,12 @@ pub struct Hello {
     pub array: ArrayInfo,
     /// Free text describing the agent software.
     pub software_version: String,
+    /// Edges of the bands of the tracks' spectral signatures, Hz: B+1 finite,
+    /// positive, strictly increasing values for B bands (1..=64). `None`: the
+    /// robot sends no signatures.
+    pub signature_bands: Option<Vec<f64>>,
+    /// Most DoAs the robot sends in one observation (1..=64), when declared.
+    pub max_tracks: Option<u32>,
 }
 
 /// One tracked direction of arrival.
@@ -54,6 +64,12 @@ pub struct TrackedDoa {
     pub activity: f64,
     /// 1-σ angular uncertainty per tangent axis (rad), when the robot knows it.
     pub angular_sigma_rad: Option<f64>,
+    /// Spectral signature of the track's source: mean power per band of the
+    /// hello's `signature_bands` of the array steered at the track, dB
+    /// (10·log10; 0 dB = unit-variance white noise from that direction),
+    /// smoothed over ~100 ms; finite, within [`SIGNATURE_DB_RANGE`]. `None`:
+    /// no signature (never an empty vector).
+    pub signature: Option<Vec<f32>>,
 }
 
 /// A robot's DoAs at one instant with its pose at that instant.
@@ -163,6 +179,35 @@ fn text(s: &str, field: &str) -> Result<String, ValidationError> {
     Ok(s.to_owned())
 }
 
+/// Validates signature band edges (B+1 values for 1..=64 bands, finite,
+/// positive, strictly increasing, Hz).
+fn band_edges(edges: &[f64], field: &str) -> Result<Vec<f64>, ValidationError> {
+    if edges.len() < 2 || edges.len() > MAX_SIGNATURE_BANDS + 1 {
+        return Err(ValidationError::new(
+            field,
+            Problem::Invalid(format!(
+                "{} edges; 1 to {MAX_SIGNATURE_BANDS} bands need 2 to {} edges",
+                edges.len(),
+                MAX_SIGNATURE_BANDS + 1
+            )),
+        ));
+    }
+    for (i, &e) in edges.iter().enumerate() {
+        let f = format!("{field}[{i}]");
+        finite(e, &f)?;
+        if e <= 0.0 {
+            return Err(ValidationError::new(f, Problem::OutOfRange { value: e, range: "(0, ∞) Hz" }));
+        }
+        if i > 0 && e <= edges[i - 1] {
+            return Err(ValidationError::new(
+                f,
+                Problem::Invalid(format!("{e} Hz does not exceed the previous edge {} Hz", edges[i - 1])),
+            ));
+        }
+    }
+    Ok(edges.to_vec())
+}
+
 impl ArrayInfo {
     /// Validates a wire array description; errors name fields under `field`.
     pub fn from_wire(
@@ -232,11 +277,32 @@ impl Hello {
                 )),
             ));
         }
+        let max_tracks = match h.max_tracks {
+            0 => None,
+            n if n as usize > MAX_DOAS_PER_OBSERVATION => {
+                return Err(ValidationError::new(
+                    "hello.max_tracks",
+                    Problem::OutOfRange { value: n as f64, range: "[1, 64] (0 = unspecified)" },
+                ));
+            }
+            n => Some(n),
+        };
         Ok(Hello {
             robot_id,
             array: ArrayInfo::from_wire(&h.array, "hello.array", limits)?,
             software_version: text(&h.software_version, "hello.software_version")?,
+            signature_bands: h
+                .signature_bands
+                .as_ref()
+                .map(|b| band_edges(&b.band_edges_hz, "hello.signature_bands.band_edges_hz"))
+                .transpose()?,
+            max_tracks,
         })
+    }
+
+    /// Number of signature bands the robot declared (0 when it sends none).
+    pub fn signature_band_count(&self) -> usize {
+        self.signature_bands.as_ref().map_or(0, |e| e.len().saturating_sub(1))
     }
 
     /// Wire form.
@@ -246,6 +312,11 @@ impl Hello {
             array: Some(self.array.to_wire()),
             software_version: self.software_version.clone(),
             protocol_version: PROTOCOL_VERSION,
+            signature_bands: self
+                .signature_bands
+                .as_ref()
+                .map(|e| wire::SignatureBands { band_edges_hz: e.clone() }),
+            max_tracks: self.max_tracks.unwrap_or(0),
         }
     }
 }
@@ -268,11 +339,25 @@ impl TrackedDoa {
                 Problem::OutOfRange { value: sigma, range: "[0, π] (0 = unknown)" },
             ));
         }
+        let field = format!("{field}.signature_db");
+        let (lo, hi) = SIGNATURE_DB_RANGE;
+        for (i, &v) in d.signature_db.iter().enumerate() {
+            if !v.is_finite() {
+                return Err(ValidationError::new(format!("{field}[{i}]"), Problem::NonFinite(v as f64)));
+            }
+            if !(lo..=hi).contains(&v) {
+                return Err(ValidationError::new(
+                    format!("{field}[{i}]"),
+                    Problem::OutOfRange { value: v as f64, range: "[-200, 200] dB" },
+                ));
+            }
+        }
         Ok(TrackedDoa {
             track_id: d.track_id,
             direction_in_array,
             activity,
             angular_sigma_rad: (sigma > 0.0).then_some(sigma),
+            signature: (!d.signature_db.is_empty()).then(|| d.signature_db.clone()),
         })
     }
 
@@ -283,6 +368,7 @@ impl TrackedDoa {
             direction_in_array: Some(vec3_to_wire(&self.direction_in_array)),
             activity: self.activity,
             angular_sigma_rad: self.angular_sigma_rad.unwrap_or(0.0),
+            signature_db: self.signature.clone().unwrap_or_default(),
         }
     }
 }
@@ -307,6 +393,48 @@ impl Observation {
             .map(|(i, d)| TrackedDoa::from_wire(d, &format!("observation.doas[{i}]"), limits))
             .collect::<Result<Vec<_>, _>>()?;
         Ok(Observation { sequence: o.sequence, stamp, map_from_base, pose_covariance, doas })
+    }
+
+    /// Checks an observation against the hello of the stream it came on:
+    /// at most the declared `max_tracks` DoAs, distinct track ids, and every
+    /// signature with exactly the declared number of bands (none when the
+    /// hello declared no bands). Errors name the field
+    /// (`observation.doas`, `observation.doas[i].track_id`,
+    /// `observation.doas[i].signature_db`).
+    pub fn check_against(&self, hello: &Hello) -> Result<(), ValidationError> {
+        if let Some(max) = hello.max_tracks
+            && self.doas.len() > max as usize
+        {
+            return Err(ValidationError::new(
+                "observation.doas",
+                Problem::Invalid(format!(
+                    "{} DoAs, more than the {max} the hello declared (hello.max_tracks)",
+                    self.doas.len()
+                )),
+            ));
+        }
+        let bands = hello.signature_band_count();
+        for (i, d) in self.doas.iter().enumerate() {
+            if self.doas[..i].iter().any(|e| e.track_id == d.track_id) {
+                return Err(ValidationError::new(
+                    format!("observation.doas[{i}].track_id"),
+                    Problem::Invalid(format!("track id {} appears twice in one observation", d.track_id)),
+                ));
+            }
+            if let Some(s) = &d.signature
+                && s.len() != bands
+            {
+                return Err(ValidationError::new(
+                    format!("observation.doas[{i}].signature_db"),
+                    if bands == 0 {
+                        Problem::Invalid("a signature, but the hello declared no signature_bands".into())
+                    } else {
+                        Problem::WrongLength { expected: bands, got: s.len() }
+                    },
+                ));
+            }
+        }
+        Ok(())
     }
 
     /// Wire form.
@@ -477,6 +605,7 @@ mod tests {
                 direction_in_array: Unit::new_normalize(Vector3::new(1.0, 1.0, 0.3)),
                 activity: 0.9,
                 angular_sigma_rad: Some(0.05),
+                signature: Some(vec![-10.0, 3.5, 0.0]),
             }],
         }
     }
@@ -526,6 +655,8 @@ mod tests {
                 microphone_positions: vec![],
             },
             software_version: "test".into(),
+            signature_bands: Some(vec![100.0, 1000.0, 7200.0]),
+            max_tracks: Some(4),
         };
         assert_eq!(Hello::from_wire(&h.to_wire(), &l).unwrap(), h);
         let mut w = h.to_wire();
@@ -537,6 +668,101 @@ mod tests {
         let mut w = h.to_wire();
         w.protocol_version = 9;
         assert_eq!(Hello::from_wire(&w, &l).unwrap_err().field, "hello.protocol_version");
+    }
+
+    fn hello_with_bands() -> Hello {
+        Hello {
+            robot_id: RobotId::parse("r1", "id").unwrap(),
+            array: ArrayInfo {
+                base_from_array: Isometry3::identity(),
+                microphone_count: 4,
+                preset: None,
+                microphone_positions: vec![],
+            },
+            software_version: String::new(),
+            signature_bands: Some(vec![100.0, 1000.0, 3000.0, 7200.0]),
+            max_tracks: Some(2),
+        }
+    }
+
+    #[test]
+    fn signatures_round_trip_and_bad_values_are_named() {
+        let l = limits();
+        let o = observation();
+        assert_eq!(Observation::from_wire(&o.to_wire(), &l).unwrap().doas[0].signature, o.doas[0].signature);
+        // Empty on the wire is "no signature".
+        let mut w = o.to_wire();
+        w.doas[0].signature_db.clear();
+        assert_eq!(Observation::from_wire(&w, &l).unwrap().doas[0].signature, None);
+        for bad in [f32::NAN, f32::INFINITY, 250.0, -201.0] {
+            let mut w = o.to_wire();
+            w.doas[0].signature_db[1] = bad;
+            assert_eq!(
+                Observation::from_wire(&w, &l).unwrap_err().field,
+                "observation.doas[0].signature_db[1]",
+                "{bad}"
+            );
+        }
+    }
+
+    #[test]
+    fn hello_signature_layout_checks() {
+        let l = limits();
+        let h = hello_with_bands();
+        let back = Hello::from_wire(&h.to_wire(), &l).unwrap();
+        assert_eq!(back, h);
+        assert_eq!(back.signature_band_count(), 3);
+        let mut w = h.to_wire();
+        w.signature_bands = None;
+        w.max_tracks = 0;
+        let none = Hello::from_wire(&w, &l).unwrap();
+        assert_eq!((none.signature_bands, none.max_tracks), (None, None));
+        let field = "hello.signature_bands.band_edges_hz";
+        let cases: [(Vec<f64>, String); 6] = [
+            (vec![], field.into()),
+            (vec![100.0], field.into()),
+            ((1..=66).map(|i| i as f64 * 100.0).collect(), field.into()),
+            (vec![100.0, f64::NAN, 300.0], format!("{field}[1]")),
+            (vec![0.0, 200.0], format!("{field}[0]")),
+            (vec![100.0, 300.0, 300.0], format!("{field}[2]")),
+        ];
+        for (edges, f) in cases {
+            let mut w = h.to_wire();
+            w.signature_bands = Some(wire::SignatureBands { band_edges_hz: edges.clone() });
+            assert_eq!(Hello::from_wire(&w, &l).unwrap_err().field, f, "{edges:?}");
+        }
+        let mut w = h.to_wire();
+        w.signature_bands =
+            Some(wire::SignatureBands { band_edges_hz: (1..=65).map(|i| i as f64).collect() });
+        assert_eq!(Hello::from_wire(&w, &l).unwrap().signature_band_count(), 64);
+        let mut w = h.to_wire();
+        w.max_tracks = 65;
+        assert_eq!(Hello::from_wire(&w, &l).unwrap_err().field, "hello.max_tracks");
+    }
+
+    #[test]
+    fn observations_are_checked_against_the_hello() {
+        let h = hello_with_bands();
+        let doa = |id: u64, bands: Option<usize>| TrackedDoa {
+            track_id: id,
+            direction_in_array: Vector3::z_axis(),
+            activity: 0.5,
+            angular_sigma_rad: None,
+            signature: bands.map(|b| vec![1.0; b]),
+        };
+        let with = |doas: Vec<TrackedDoa>| Observation { doas, ..observation() };
+        assert!(with(vec![doa(1, Some(3)), doa(2, None)]).check_against(&h).is_ok());
+        assert!(with(vec![]).check_against(&h).is_ok());
+        let field = |o: Observation, h: &Hello| o.check_against(h).unwrap_err().field;
+        assert_eq!(
+            field(with(vec![doa(1, Some(3)), doa(2, Some(4))]), &h),
+            "observation.doas[1].signature_db"
+        );
+        assert_eq!(field(with(vec![doa(1, None), doa(1, None)]), &h), "observation.doas[1].track_id");
+        assert_eq!(field(with(vec![doa(1, None), doa(2, None), doa(3, None)]), &h), "observation.doas");
+        let plain = Hello { signature_bands: None, max_tracks: None, ..h };
+        assert!(with(vec![doa(1, None), doa(2, None), doa(3, None)]).check_against(&plain).is_ok());
+        assert_eq!(field(with(vec![doa(1, Some(3))]), &plain), "observation.doas[0].signature_db");
     }
 
     #[test]

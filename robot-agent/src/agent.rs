@@ -227,7 +227,10 @@ pub struct CoreStats {
 }
 
 /// The hello an agent opens each stream with. The array's preset name is
-/// given when the array is a preset.
+/// given when the array is a preset. It declares no track layout (no
+/// signature bands, no `max_tracks`, as for ODAS input); an agent running its
+/// own pipeline declares it with
+/// [`PipelineConfig::declare_tracks`](crate::pipeline::PipelineConfig::declare_tracks).
 pub fn hello(robot_id: RobotId, array: &ArrayGeometry, software_version: String) -> Hello {
     Hello {
         robot_id,
@@ -238,6 +241,8 @@ pub fn hello(robot_id: RobotId, array: &ArrayGeometry, software_version: String)
             microphone_positions: array.positions().collect(),
         },
         software_version,
+        signature_bands: None,
+        max_tracks: None,
     }
 }
 

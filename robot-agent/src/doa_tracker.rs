@@ -69,6 +69,7 @@ impl TrackedDirection {
             direction_in_array: self.direction_in_array,
             activity: self.activity.clamp(0.0, 1.0),
             angular_sigma_rad: (sigma.is_finite() && sigma > 0.0).then_some(sigma.min(std::f64::consts::PI)),
+            signature: None,
         }
     }
 }

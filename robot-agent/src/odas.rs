@@ -134,6 +134,7 @@ impl SstFrame {
                 direction_in_array: Unit::new_normalize(v),
                 activity: s.activity.clamp(0.0, 1.0),
                 angular_sigma_rad: None,
+                signature: None,
             });
         }
         Ok(OdasFrame { time_stamp: self.time_stamp, stamp: timing.stamp(self.time_stamp), doas })

@@ -191,6 +191,8 @@ fn hello(id: &str) -> Hello {
             microphone_positions: vec![],
         },
         software_version: "test".into(),
+        signature_bands: None,
+        max_tracks: None,
     }
 }
 
@@ -206,6 +208,7 @@ fn observation(with_doa: bool) -> Observation {
                 direction_in_array: Unit::new_normalize(Vector3::new(1.0, 0.0, 0.0)),
                 activity: 0.9,
                 angular_sigma_rad: None,
+                signature: None,
             }]
         } else {
             vec![]

@@ -248,6 +248,8 @@ fn hello(i: usize) -> wire::RobotMessage {
             microphone_positions: vec![],
         },
         software_version: "bench".into(),
+        signature_bands: None,
+        max_tracks: None,
     };
     wire::RobotMessage { msg: Some(Up::Hello(h.to_wire())) }
 }
@@ -267,6 +269,7 @@ fn observation(i: usize, n: usize, seq: u64, stamp: Stamp) -> wire::RobotMessage
             direction_in_array: Unit::new_normalize(d),
             activity: 0.9,
             angular_sigma_rad: Some(0.05),
+            signature: None,
         }],
     };
     wire::RobotMessage { msg: Some(Up::Observation(o.to_wire())) }

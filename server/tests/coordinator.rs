@@ -36,6 +36,8 @@ fn hello(id: &str) -> Hello {
         robot_id: RobotId::parse(id, "hello.robot_id").unwrap(),
         array: array(),
         software_version: "t".into(),
+        signature_bands: None,
+        max_tracks: None,
     }
 }
 
@@ -61,6 +63,7 @@ fn observation(sequence: u64, stamp: Stamp, base: Point3<f64>, source: &Point3<f
             direction_in_array,
             activity: 0.9,
             angular_sigma_rad: Some(1f64.to_radians()),
+            signature: None,
         }],
     }
 }

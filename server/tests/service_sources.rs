@@ -25,7 +25,7 @@ async fn every_source_is_streamed_mapped_and_can_be_focused() {
     let two_tracks = |stamp, base| {
         let mut o = observation_of(stamp, base, 0.0, &sources[0], None, sigma);
         let second = observation_of(stamp, base, 0.0, &sources[1], None, sigma);
-        let mut d = second.doas[0];
+        let mut d = second.doas[0].clone();
         d.track_id = 2;
         o.doas.push(d);
         o

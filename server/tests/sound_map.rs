@@ -27,6 +27,8 @@ fn hello(id: &str) -> Hello {
         robot_id: RobotId::parse(id, "hello.robot_id").unwrap(),
         array: array(),
         software_version: "t".into(),
+        signature_bands: None,
+        max_tracks: None,
     }
 }
 
@@ -64,6 +66,7 @@ fn observe(c: &mut Coordinator, r: &mut Robot, stamp: Stamp, heard: &[(u64, Poin
                 direction_in_array: Unit::new_normalize(turn * d),
                 activity: 0.9,
                 angular_sigma_rad: Some(1f64.to_radians()),
+                signature: None,
             }
         })
         .collect();

@@ -45,6 +45,7 @@ mod tests {
             direction_in_array: Unit::new_normalize(Vector3::x()),
             activity: 1.0,
             angular_sigma_rad: None,
+            signature: None,
         }
     }
 

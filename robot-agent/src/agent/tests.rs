@@ -31,6 +31,7 @@ fn doa(sigma: Option<f64>) -> TrackedDoa {
         direction_in_array: Unit::new_normalize(Vector3::new(1.0, 1.0, 0.0)),
         activity: 1.0,
         angular_sigma_rad: sigma,
+        signature: None,
     }
 }
 

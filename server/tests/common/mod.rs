@@ -47,6 +47,8 @@ pub fn hello(id: &str) -> wire::RobotMessage {
         robot_id: RobotId::parse("x", "id").unwrap(),
         array: array(),
         software_version: "test".into(),
+        signature_bands: None,
+        max_tracks: None,
     }
     .to_wire();
     h.robot_id = id.into();
@@ -167,6 +169,7 @@ pub fn observation_of(
             direction_in_array: Unit::new_normalize(d),
             activity: 0.9,
             angular_sigma_rad: Some(sigma_rad),
+            signature: None,
         }],
     }
     .to_wire()
