@@ -20,21 +20,29 @@
 //!
 //! **New sources (births).** Rays no source claims are paired across robots:
 //! every pair of two robots' unclaimed rays is triangulated, and a pair is a
-//! candidate when the triangulation's gate accepts it (finite, in front of
-//! both arrays, well enough conditioned, miss distance within its χ²). A third
+//! candidate when its triangulation is usable: finite, in front of both
+//! arrays, rays that meet (residual χ² within its quantile), and accepted by
+//! the gate or rejected only as ill-conditioned (robots side by side: the
+//! tracker then starts with the large covariance that geometry gives). A third
 //! robot's unclaimed ray that passes within 3 σ of the candidate point joins
 //! it. Candidates that share a ray exclude each other; the set kept maximizes
-//! `Σ (w · rays − χ²)` ([`best_disjoint`], exact for the small numbers here),
+//! `Σ (w · rays − χ²)` ([`best_disjoint`], exact for the small numbers here;
+//! the sound map uses w = 2γ),
 //! so that real intersections (rays that meet in 3D: χ² small) win over
 //! ghosts (rays from different sources are skew lines unless the sources
 //! share a height: χ² large), and three-ray candidates over two-ray ones.
-//! Worked numbers, two robots 4 m apart, talkers at 1.2 m and 1.7 m height,
-//! σ = 2°: a true pair meets with χ² ≈ 1, a ghost pair misses by ~0.3 m at
-//! ~3 m range, χ² ≈ (0.3 / (3 · 0.035))² ≈ 8, so {true, true} beats
-//! {ghost, ghost} by ~14 in the objective. A candidate must recur in
-//! consecutive rounds before a source is born (the sound map's rule), and
-//! a ghost that is born anyway moves when the robots move, leaves its rays'
-//! gates and dies.
+//! Worked numbers: two robots ~3 m from two talkers at 1.2 m and 1.7 m
+//! height, σ = 2° = 0.035 rad. A pair's miss distance d has variance
+//! (r₁σ)² + (r₂σ)² = 2 · (3 · 0.035)² ≈ 0.022 m², so χ² ≈ d² / 0.022. A true
+//! pair meets up to noise: χ² ≈ 1 (its mean, 1 dof). A ghost pair joins one
+//! talker's ray to the other's, and the rays pass each other ~0.4 m apart
+//! vertically: χ² ≈ 0.16 / 0.022 ≈ 7. With w = 2γ per ray, {true, true}
+//! scores 8γ − 2 and {ghost, ghost} 8γ − 14: the true pairing wins by ~12.
+//! Talkers at one height are told apart over time instead: while one of them
+//! pauses only true pairs exist, and the robot-local track labels then hold
+//! the pairing when both speak. A candidate must recur in consecutive rounds
+//! before a source is born (the sound map's rule), and a ghost that is born
+//! anyway moves when the robots move, leaves its rays' gates and dies.
 
 /// Minimum-cost assignment of rows to columns for a rectangular cost matrix
 /// (`cost[i][j]`, `f64::INFINITY` = forbidden), every row free to stay

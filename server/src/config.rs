@@ -149,8 +149,11 @@ pub struct OutputConfig {
 #[derive(Clone, Debug, PartialEq, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct SourcesConfig {
-    /// Most sources followed at once. 1: one source, from each robot's dominant
-    /// DoA (the single-source coordinator).
+    /// Most sources followed at once. Default 1: one source, from each robot's
+    /// dominant DoA (the single-source coordinator, which publishes a
+    /// triangulation even before a track starts); also when `[tracking]
+    /// enabled = false`. More: the sound map (births need a pairing seen in
+    /// `birth_rounds` rounds before anything is published).
     pub max_sources: usize,
     /// Consecutive estimate rounds in which the same robot-local tracks must
     /// pair up before a source is born from them.
@@ -348,9 +351,6 @@ impl CoordinatorConfig {
         }
         self.tracking.validate().map_err(|e| invalid_key(path, e.within("tracking")))?;
         self.sources.validate().map_err(|e| invalid_key(path, e.within("sources")))?;
-        if self.sources.max_sources > 1 && !self.tracking.enabled {
-            return err("sources.max_sources", "several sources need [tracking] enabled = true".into());
-        }
         self.validate_positioning(path)?;
         Ok(())
     }

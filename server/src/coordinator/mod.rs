@@ -111,7 +111,7 @@ impl Coordinator {
         config.validate(std::path::Path::new("<config>"))?;
         Ok(Coordinator {
             tracking: Tracking::new(&config.tracking),
-            sound_map: (config.sources.max_sources > 1)
+            sound_map: (config.sources.max_sources > 1 && config.tracking.enabled)
                 .then(|| SoundMap::new(config.sources.clone(), config.tracking.clone())),
             latest_by_source: BTreeMap::new(),
             focus: 0,

@@ -34,7 +34,7 @@ use crate::config::SourcesConfig;
 use crate::ray::Ray;
 use crate::stats::chi2_quantile;
 use crate::tracking::{InitOutcome, SourceTracker, TrackEstimate, TrackerConfig, UpdateOutcome};
-use crate::triangulation::{Gate, Triangulation, TriangulationConfig, triangulate};
+use crate::triangulation::{Gate, GateReason, Triangulation, TriangulationConfig, triangulate};
 
 /// A ray of one robot's observation: the ray, the DoA's activity and the
 /// robot-local track id.
@@ -142,6 +142,10 @@ pub struct SoundMap {
     arrivals: u64,
     latest: Vec<Option<Stamp>>,
     newest: Option<Stamp>,
+    /// Stamp of the last observation queued per robot (rate limit).
+    last_queued: Vec<Option<Stamp>>,
+    /// Shortest interval between two observations of a robot given to the trackers (ns).
+    min_interval_ns: i64,
     next_id: u64,
     /// Sources born since start.
     pub births: u64,
@@ -151,6 +155,7 @@ impl SoundMap {
     /// An empty map.
     pub fn new(config: SourcesConfig, tracker: TrackerConfig) -> Self {
         let gate = chi2_quantile(2, tracker.association_probability);
+        let rate = tracker.max_doa_rate_hz;
         SoundMap {
             config,
             tracker,
@@ -163,20 +168,31 @@ impl SoundMap {
             arrivals: 0,
             latest: Vec::new(),
             newest: None,
+            last_queued: Vec::new(),
+            min_interval_ns: if rate > 0.0 { (1e9 / rate) as i64 } else { 0 },
             next_id: 1,
             births: 0,
         }
     }
 
-    /// Robot `robot`'s observation stamped `stamp` (its rays may be empty).
+    /// Robot `robot`'s observation stamped `stamp` (its rays may be empty). As
+    /// for one source, a robot's observations reach the trackers at most
+    /// `tracking.max_doa_rate_hz` times a second: a room biases a robot's
+    /// successive DoAs alike, and applied as independent they would make the
+    /// filters overconfident.
     pub fn push(&mut self, stamp: Stamp, robot: u32, rays: Vec<TaggedRay>) {
         let i = robot as usize;
         if self.latest.len() <= i {
             self.latest.resize(i + 1, None);
+            self.last_queued.resize(i + 1, None);
         }
         self.latest[i] = Some(self.latest[i].map_or(stamp, |l| l.max(stamp)));
         self.newest = Some(self.newest.map_or(stamp, |n| n.max(stamp)));
+        if self.last_queued[i].is_some_and(|last| stamp - last < self.min_interval_ns && stamp >= last) {
+            return;
+        }
         if !rays.is_empty() {
+            self.last_queued[i] = Some(stamp);
             self.arrivals += 1;
             self.queue.push(Reverse(Queued { stamp, arrival: self.arrivals, robot, rays }));
         }
@@ -317,7 +333,7 @@ impl SoundMap {
         config: &TriangulationConfig,
     ) -> Option<Candidate> {
         let pair = triangulate(&[a.2, b.2], config);
-        let point = accepted(&pair)?;
+        let point = usable(&pair, config)?;
         let mut keys = vec![(a.0, a.1), (b.0, b.1)];
         let mut rays = vec![a.2, b.2];
         let mut newest = a.3.max(b.3);
@@ -336,7 +352,7 @@ impl SoundMap {
             }
         }
         let tri = if rays.len() > 2 { triangulate(&rays, config) } else { pair };
-        let point = accepted(&tri)?;
+        let point = usable(&tri, config)?;
         let near_live = self.sources.iter().any(|s| {
             s.tracker
                 .estimate()
@@ -351,10 +367,16 @@ impl SoundMap {
 
     fn birth(&mut self, now: Stamp, newest: Stamp, tri: &Triangulation, keys: &[(u32, u64)]) {
         let mut tracker = SourceTracker::new(self.tracker.clone());
-        if !matches!(tracker.initialize_from_triangulation(newest, tri), InitOutcome::Started { .. }) {
+        let Some(solution) = tri.solution() else { return };
+        let Some(covariance) = solution.quality.covariance else { return };
+        // An accepted triangulation or one only ill-conditioned (robots side by
+        // side): its covariance says how little it pins down the range.
+        let inflation = self.tracker.init_covariance_inflation;
+        let started = tracker.initialize(newest, solution.source_in_map, covariance * inflation);
+        if !matches!(started, InitOutcome::Started { .. }) {
             return;
         }
-        let Some(point) = tri.solution().map(|s| s.source_in_map) else { return };
+        let point = solution.source_in_map;
         let mut first_heard = newest;
         let reuse = self
             .remembered
@@ -437,9 +459,19 @@ impl SoundMap {
     }
 }
 
-/// The point of an accepted triangulation.
-fn accepted(t: &Triangulation) -> Option<Point3<f64>> {
-    t.solution().filter(|s| s.gate == Gate::Accepted).map(|s| s.source_in_map)
+/// The point of a triangulation a source may be born from: one its gate
+/// accepted, or one rejected only as ill-conditioned or uncertain whose rays
+/// still meet (residual χ² within its quantile), as robots side by side give.
+fn usable(t: &Triangulation, config: &TriangulationConfig) -> Option<Point3<f64>> {
+    let s = t.solution()?;
+    let ok = match s.gate {
+        Gate::Accepted => true,
+        Gate::Rejected(GateReason::IllConditioned { .. } | GateReason::Uncertain { .. }) => {
+            s.residual_chi2 <= chi2_quantile(s.residual_dof, config.residual_probability)
+        }
+        Gate::Rejected(_) => false,
+    };
+    ok.then_some(s.source_in_map)
 }
 
 fn tri_chi2(t: &Triangulation) -> f64 {
