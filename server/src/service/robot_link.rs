@@ -73,12 +73,13 @@ impl RobotLink for RobotLinkService {
         };
         let (outbound, rx) = mpsc::channel(OUTBOUND_CAPACITY);
         let (reply, answer) = oneshot::channel();
+        let stream_hello = hello.clone();
         self.requests
             .send(actor::Request::Connect { hello, identity, outbound, reply })
             .await
             .map_err(|_| status::shutting_down())?;
         let welcome = answer.await.map_err(|_| status::shutting_down())?.map_err(|e| to_status(&e))?;
-        tokio::spawn(read_stream(inbound, welcome.conn, self.clone()));
+        tokio::spawn(read_stream(inbound, welcome.conn, stream_hello, self.clone()));
         // Queued messages go out first; on shutdown the stream ends with
         // UNAVAILABLE so that the robot reconnects later.
         let stream =
@@ -103,9 +104,17 @@ impl RobotLink for RobotLinkService {
 }
 
 /// Reads one robot's stream until it ends: validates each message here (on
-/// the stream's own task, so validation runs in parallel across robots) and
-/// hands it to the coordinator task, which answers in order on the stream.
-async fn read_stream(mut inbound: Streaming<wire::RobotMessage>, conn: ConnId, svc: RobotLinkService) {
+/// the stream's own task, so validation runs in parallel across robots),
+/// observations also against the stream's `hello` (declared `max_tracks`
+/// and signature bands, distinct track ids), and hands it to the coordinator
+/// task, which answers in order on the stream (a rejected message becomes a
+/// `StreamError` and the stream goes on).
+async fn read_stream(
+    mut inbound: Streaming<wire::RobotMessage>,
+    conn: ConnId,
+    hello: Hello,
+    svc: RobotLinkService,
+) {
     let mut stop = svc.stopping.clone();
     loop {
         let next = tokio::select! {
@@ -126,7 +135,10 @@ async fn read_stream(mut inbound: Streaming<wire::RobotMessage>, conn: ConnId, s
             _ => None,
         };
         let request = match RobotInput::from_wire(&msg, &svc.limits()) {
-            Ok(RobotInput::Observation(obs)) => actor::Request::Observation { conn, obs, received },
+            Ok(RobotInput::Observation(obs)) => match obs.check_against(&hello) {
+                Ok(()) => actor::Request::Observation { conn, obs, received },
+                Err(e) => actor::Request::Rejected { conn, sequence, error: e.into() },
+            },
             Ok(RobotInput::Heartbeat(_)) => actor::Request::Heartbeat { conn },
             Ok(RobotInput::CommandAck(ack)) => actor::Request::CommandAck { conn, ack },
             Ok(RobotInput::CommandProgress(progress)) => actor::Request::CommandProgress { conn, progress },
