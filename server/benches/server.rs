@@ -7,10 +7,11 @@
 //!   to the publication of the first estimate that used it.
 //!
 //! - tracker: the source tracker's per-DoA update, in order and with late DoAs;
-//! - planner: one planning cycle for 2, 3 and 8 robots.
+//! - planner: one planning cycle for 2, 3 and 8 robots;
+//! - sources: several sources (8 robots × 4 tracks) against one.
 //!
 //! Options: `--quick` (shorter runs), `--only NAME` (triangulation | tracker |
-//! planner | service), `--no-tracking` (the service without its source tracker,
+//! planner | sources | service), `--no-tracking` (the service without its source tracker,
 //! to see the tracker's share).
 
 use std::hint::black_box;
@@ -442,6 +443,105 @@ fn bench_service(quick: bool, tracking: bool) {
     println!("targets: ≥ 50,000 observations/s with 128 robots, p99 < 5 ms\n");
 }
 
+/// Several sources: the coordinator state machine (in process) with 8 robots
+/// around 4 sources, each robot reporting 4 tracks at 20 Hz; the cost per
+/// observation of validation-free `observe` plus the batch's association,
+/// tracking and estimates, against the same run with one source followed
+/// (`max_sources = 1`, each robot's dominant DoA) as the reference.
+fn bench_sources(quick: bool) {
+    use soundmap_server::coordinator::Coordinator;
+    let array = ArrayInfo {
+        base_from_array: Isometry3::translation(0.0, 0.0, 0.48),
+        microphone_count: 16,
+        preset: None,
+        microphone_positions: vec![],
+    };
+    let sources = [
+        Point3::new(1.0, 0.5, 1.2),
+        Point3::new(-1.2, 0.8, 1.7),
+        Point3::new(0.3, -1.4, 0.9),
+        Point3::new(-0.6, -0.5, 1.5),
+    ];
+    let robots: Vec<Point3<f64>> = (0..8)
+        .map(|k| {
+            let a = k as f64 * std::f64::consts::TAU / 8.0;
+            Point3::new(4.5 * a.cos(), 4.5 * a.sin(), 0.0)
+        })
+        .collect();
+    let seconds = if quick { 10.0 } else { 30.0 };
+    let rounds = (seconds * 20.0) as i64;
+    let t0 = Stamp::from_ns(1_767_225_600_000_000_000);
+    let mut rng = ChaCha8Rng::seed_from_u64(3);
+    // Observations, prepared outside the timing.
+    let mut all = Vec::new();
+    for k in 0..rounds {
+        for (r, base) in robots.iter().enumerate() {
+            let stamp = t0.plus_ns(k * 50_000_000 + r as i64 * 1_000_000);
+            let map_from_base = Isometry3::translation(base.x, base.y, base.z);
+            let map_from_array = map_from_base * array.base_from_array;
+            let doas = sources
+                .iter()
+                .enumerate()
+                .map(|(j, s)| {
+                    let d = (map_from_array.inverse() * s).coords.normalize();
+                    let e: f64 = StandardNormal.sample(&mut rng);
+                    let d = (d + tangent_basis(&Unit::new_normalize(d)).0 * e * 0.01).normalize();
+                    TrackedDoa {
+                        track_id: j as u64 + 1,
+                        direction_in_array: Unit::new_normalize(d),
+                        activity: 0.9,
+                        angular_sigma_rad: Some(1f64.to_radians()),
+                        signature: None,
+                    }
+                })
+                .collect();
+            let obs =
+                Observation { sequence: k as u64 + 1, stamp, map_from_base, pose_covariance: None, doas };
+            all.push((r, stamp, obs));
+        }
+    }
+    println!("## several sources (one thread; 8 robots × 4 tracks at 20 Hz around 4 sources, {seconds} s)");
+    println!(
+        "| coordinator | µs per observation (observe + association, tracking, estimates per round) | sources at the end |"
+    );
+    println!("|---|---|---|");
+    for max_sources in [1, 4] {
+        let mut config = CoordinatorConfig::default();
+        config.sources.max_sources = max_sources;
+        let mut found = 0;
+        let per = time_per_call(if quick { 2 } else { 5 }, 1, |_| {
+            let mut c = Coordinator::new(config.clone()).unwrap();
+            let conns: Vec<_> = (0..robots.len())
+                .map(|r| {
+                    let hello = Hello {
+                        robot_id: RobotId::parse(&format!("r{r}"), "id").unwrap(),
+                        array: array.clone(),
+                        software_version: "bench".into(),
+                        signature_bands: None,
+                        max_tracks: Some(4),
+                    };
+                    c.connect(t0, hello, None).unwrap().conn
+                })
+                .collect();
+            for (i, (r, stamp, obs)) in all.iter().enumerate() {
+                let now = stamp.plus_ns(5_000_000);
+                c.observe(now, conns[*r], obs.clone()).unwrap();
+                if i % robots.len() == robots.len() - 1 {
+                    black_box(c.estimate(now));
+                }
+            }
+            found = c.latest_estimates().len();
+        }) / all.len() as f64;
+        let name = if max_sources == 1 {
+            "one source (reference: dominant DoA)"
+        } else {
+            "sound map, max_sources = 4"
+        };
+        println!("| {name} | {:.1} | {found} |", per / 1e3);
+    }
+    println!("target: < 50 µs per observation with 8 robots × 4 tracks\n");
+}
+
 fn main() {
     let args: Vec<String> = std::env::args().collect();
     let quick = args.iter().any(|a| a == "--quick");
@@ -455,6 +555,9 @@ fn main() {
     }
     if run("planner") {
         bench_planner(quick);
+    }
+    if run("sources") {
+        bench_sources(quick);
     }
     if run("service") {
         bench_service(quick, !args.iter().any(|a| a == "--no-tracking"));
