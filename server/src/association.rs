@@ -25,7 +25,11 @@
 //! the gate or rejected only as ill-conditioned (robots side by side: the
 //! tracker then starts with the large covariance that geometry gives). A third
 //! robot's unclaimed ray that passes within 3 σ of the candidate point joins
-//! it. Candidates that share a ray exclude each other; the set kept maximizes
+//! it. Where robots send spectral signatures (log band energies of the array
+//! steered at each track), two tracks whose signatures correlate below 0.3
+//! ([`signature_similarity`]) are never paired — a fan and a talker are not
+//! one source, however well their rays meet — and a pair's correlation ρ adds
+//! γρ to its score. Candidates that share a ray exclude each other; the set kept maximizes
 //! `Σ (w · rays − χ²)` ([`best_disjoint`], exact for the small numbers here;
 //! the sound map uses w = 2γ),
 //! so that real intersections (rays that meet in 3D: χ² small) win over

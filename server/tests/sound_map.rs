@@ -52,6 +52,17 @@ struct Robot {
 
 /// Robot `r`'s observation at `stamp` of the sources `heard`: (robot-local track id, position).
 fn observe(c: &mut Coordinator, r: &mut Robot, stamp: Stamp, heard: &[(u64, Point3<f64>)]) {
+    observe_with(c, r, stamp, heard, |_| None)
+}
+
+/// [`observe`], with each DoA's signature given by `signature(track_id)`.
+fn observe_with(
+    c: &mut Coordinator,
+    r: &mut Robot,
+    stamp: Stamp,
+    heard: &[(u64, Point3<f64>)],
+    signature: impl Fn(u64) -> Option<Vec<f32>>,
+) {
     r.sequence += 1;
     let map_from_base = Isometry3::translation(r.base.x, r.base.y, r.base.z);
     let map_from_array = map_from_base * array().base_from_array;
@@ -66,7 +77,7 @@ fn observe(c: &mut Coordinator, r: &mut Robot, stamp: Stamp, heard: &[(u64, Poin
                 direction_in_array: Unit::new_normalize(turn * d),
                 activity: 0.9,
                 angular_sigma_rad: Some(1f64.to_radians()),
-                signature: None,
+                signature: signature(track_id),
             }
         })
         .collect();
@@ -200,4 +211,67 @@ fn one_source_is_still_one_source() {
     assert_eq!(ids[&0].len(), 1, "{ids:?}");
     assert!(worst < 0.3);
     assert_eq!(c.latest_estimates().len(), 1);
+}
+
+/// Two sources at one height, both sounding from the start, heard by two
+/// robots: geometry alone cannot tell the true pairs from the ghosts (all four
+/// ray pairs meet), the spectra can: a fan and a talker.
+#[test]
+fn sources_at_one_height_with_signatures_give_no_ghosts() {
+    let fan: Vec<f32> = (0..24).map(|b| 70.0 - 1.5 * b as f32).collect();
+    let talker: Vec<f32> =
+        (0..24).map(|b| 40.0 + 20.0 * (-((b as f32 - 12.0) / 4.0).powi(2)).exp()).collect();
+    let run_with = |signatures: bool| {
+        let mut c = Coordinator::new(several()).unwrap();
+        let bases = [Point3::new(3.0, -1.0, 0.0), Point3::new(-1.0, 3.0, 0.0)];
+        let mut rs = robots(&mut c, &bases);
+        let (s1, s2) = (Point3::new(0.8, 0.6, 1.4), Point3::new(-0.6, -0.4, 1.4));
+        // Robot-local ids: fan tracks end in 1, talker tracks in 2.
+        let sig = |track: u64| signatures.then(|| if track % 10 == 1 { fan.clone() } else { talker.clone() });
+        let mut out = Vec::new();
+        for k in 0..120 {
+            let t_s = k as f64 * 0.05;
+            for (i, r) in rs.iter_mut().enumerate() {
+                let stamp = T0.plus_secs(t_s).plus_ns(i as i64 * 3 * MS);
+                let heard = [(10 * i as u64 + 1, s1), (10 * i as u64 + 2, s2)];
+                observe_with(&mut c, r, stamp, &heard, sig);
+            }
+            let now = T0.plus_secs(t_s).plus_ns(20 * MS);
+            out.extend(c.estimate(now).into_iter().map(|e| (t_s, e)));
+        }
+        score(&out, &[s1, s2])
+    };
+    let (ids, worst) = run_with(true);
+    println!("one height, signatures: ids {ids:?}, worst {worst:.2} m");
+    assert_eq!(ids.len(), 2, "{ids:?}");
+    assert!(worst < 0.35, "a ghost {worst:.2} m from every source");
+    let (ids_blind, worst_blind) = run_with(false);
+    println!("one height, no signatures: ids {ids_blind:?}, worst {worst_blind:.2} m");
+}
+
+/// Robot a hears only a fan, robot b only a talker, and their rays happen to
+/// meet at a point: without signatures that point is taken for a source (a
+/// ghost); with them, the spectra say the two tracks hear different things.
+#[test]
+fn rays_that_meet_but_hear_different_things_make_no_source() {
+    let fan: Vec<f32> = (0..24).map(|b| 70.0 - 1.5 * b as f32).collect();
+    let talker: Vec<f32> =
+        (0..24).map(|b| 40.0 + 20.0 * (-((b as f32 - 12.0) / 4.0).powi(2)).exp()).collect();
+    let meet = Point3::new(0.5, 0.5, 1.3);
+    let births = |signatures: bool| {
+        let mut c = Coordinator::new(several()).unwrap();
+        let mut rs = robots(&mut c, &[Point3::new(3.0, 0.0, 0.0), Point3::new(0.0, 3.0, 0.0)]);
+        for k in 0..60 {
+            let t_s = k as f64 * 0.05;
+            for (i, r) in rs.iter_mut().enumerate() {
+                let stamp = T0.plus_secs(t_s).plus_ns(i as i64 * 3 * MS);
+                let sig = |_| signatures.then(|| if i == 0 { fan.clone() } else { talker.clone() });
+                observe_with(&mut c, r, stamp, &[(1, meet)], sig);
+            }
+            c.estimate(T0.plus_secs(t_s).plus_ns(20 * MS));
+        }
+        c.sound_map().unwrap().births
+    };
+    assert_eq!(births(false), 1, "without signatures the meeting point is taken for a source");
+    assert_eq!(births(true), 0, "a fan and a talker are not one source");
 }

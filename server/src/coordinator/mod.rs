@@ -32,7 +32,7 @@ use soundmap_proto::{
 pub use commands::{CommandLog, ConnId, Outbound, Outgoing, Refusal};
 pub use estimate::{BestSource, Estimate};
 pub use positioning::{PlanKind, PlannerStatus, PositioningSettings, PositioningUpdate};
-pub use robots::{Liveness, RobotEntry, StoredObservation};
+pub use robots::{Liveness, RobotEntry, StoredObservation, TaggedRay};
 pub use tracking::TrackingCounters;
 
 use crate::config::CoordinatorConfig;
@@ -288,7 +288,12 @@ impl Coordinator {
                     sigma,
                     obs.pose_covariance.as_ref(),
                 );
-                (ray, d.activity, d.track_id)
+                TaggedRay {
+                    ray,
+                    activity: d.activity,
+                    track_id: d.track_id,
+                    signature: d.signature.as_deref().map(std::sync::Arc::from),
+                }
             })
             .collect::<Vec<_>>();
         entry.last_sequence = Some(obs.sequence);

@@ -10,14 +10,27 @@ use soundmap_proto::{Hello, Stamp};
 use super::commands::{CommandLog, ConnId};
 use crate::ray::Ray;
 
+/// One DoA of an observation as a ray in the map, with what else the robot
+/// said of it.
+#[derive(Clone, Debug)]
+pub struct TaggedRay {
+    /// The ray, map frame.
+    pub ray: Ray,
+    /// The DoA's activity, [0, 1].
+    pub activity: f64,
+    /// The robot-local track id.
+    pub track_id: u64,
+    /// The track's spectral signature (dB per band), when the robot sends one.
+    pub signature: Option<std::sync::Arc<[f32]>>,
+}
+
 /// One observation kept for alignment: the robot's rays at a stamp.
 #[derive(Clone, Debug)]
 pub struct StoredObservation {
     /// Acoustic time of the DoAs.
     pub stamp: Stamp,
-    /// Rays of the DoAs that passed the activity threshold, map frame, with their activity
-    /// and robot-local track id.
-    pub rays: Vec<(Ray, f64, u64)>,
+    /// Rays of the DoAs that passed the activity threshold, map frame.
+    pub rays: Vec<TaggedRay>,
     /// Receipt time (coordinator clock).
     pub received: Stamp,
 }
@@ -25,7 +38,7 @@ pub struct StoredObservation {
 impl StoredObservation {
     /// The ray of the most active DoA.
     pub fn dominant(&self) -> Option<&Ray> {
-        self.rays.iter().max_by(|a, b| a.1.total_cmp(&b.1)).map(|r| &r.0)
+        self.rays.iter().max_by(|a, b| a.activity.total_cmp(&b.activity)).map(|r| &r.ray)
     }
 }
 

@@ -29,16 +29,14 @@ use std::collections::{BinaryHeap, HashMap};
 use nalgebra::Point3;
 use soundmap_proto::Stamp;
 
-use crate::association::{assign, best_disjoint};
+use crate::association::{assign, best_disjoint, signature_similarity};
 use crate::config::SourcesConfig;
 use crate::ray::Ray;
 use crate::stats::chi2_quantile;
 use crate::tracking::{InitOutcome, SourceTracker, TrackEstimate, TrackerConfig, UpdateOutcome};
 use crate::triangulation::{Gate, GateReason, Triangulation, TriangulationConfig, triangulate};
 
-/// A ray of one robot's observation: the ray, the DoA's activity and the
-/// robot-local track id.
-pub type TaggedRay = (Ray, f64, u64);
+pub use super::robots::TaggedRay;
 
 /// A robot-local track: (robot index, the robot's track id).
 type TrackKey = (u32, u64);
@@ -107,6 +105,21 @@ impl Ord for Queued {
         (self.stamp, self.arrival).cmp(&(o.stamp, o.arrival))
     }
 }
+
+/// An unclaimed ray, as births see it.
+#[derive(Clone, Debug)]
+struct Free {
+    robot: u32,
+    track: u64,
+    ray: Ray,
+    stamp: Stamp,
+    signature: Option<std::sync::Arc<[f32]>>,
+}
+
+/// Two tracks whose signatures correlate less than this are not paired
+/// (a fan and a talker); above it, the correlation × γ is added to the
+/// candidate's score.
+const MIN_SIGNATURE_SIMILARITY: f64 = 0.3;
 
 /// Labels not refreshed for this long are forgotten (ns).
 const LABEL_TTL_NS: i64 = 5_000_000_000;
@@ -256,7 +269,8 @@ impl SoundMap {
         let cost: Vec<Vec<f64>> = q
             .rays
             .iter()
-            .map(|(ray, _, track)| {
+            .map(|t| {
+                let (ray, track) = (&t.ray, &t.track_id);
                 let label = self.labels.get(&(q.robot, *track)).map(|l| l.source);
                 self.sources
                     .iter()
@@ -273,7 +287,7 @@ impl SoundMap {
             .collect();
         for (k, j) in assign(&cost, self.gate).into_iter().enumerate() {
             let Some(j) = j else { continue };
-            let (ray, _, track) = q.rays[k];
+            let (ray, track) = (q.rays[k].ray, q.rays[k].track_id);
             let s = &mut self.sources[j];
             if matches!(s.tracker.update(q.stamp, q.robot, &ray), UpdateOutcome::Applied { .. }) {
                 s.last_heard = s.last_heard.max(q.stamp);
@@ -288,22 +302,31 @@ impl SoundMap {
 
     /// Candidate births from the unclaimed aligned rays (see the module docs).
     fn births(&mut self, now: Stamp, aligned: &[AlignedRays], config: &TriangulationConfig) {
-        let free: Vec<(u32, u64, Ray, Stamp)> = aligned
+        let free: Vec<Free> = aligned
             .iter()
             .flat_map(|a| {
-                a.rays
-                    .iter()
-                    .filter(|(_, _, track)| !self.claimed(a.robot, *track))
-                    .map(move |(ray, _, track)| (a.robot, *track, *ray, a.stamp))
+                a.rays.iter().filter(|t| !self.claimed(a.robot, t.track_id)).map(move |t| Free {
+                    robot: a.robot,
+                    track: t.track_id,
+                    ray: t.ray,
+                    stamp: a.stamp,
+                    signature: t.signature.clone(),
+                })
             })
             .collect();
         let mut members: Vec<Vec<(u32, u64)>> = Vec::new();
         let mut scores = Vec::new();
         let mut solutions = Vec::new();
         for (i, a) in free.iter().enumerate() {
-            for b in free.iter().skip(i + 1).filter(|b| b.0 != a.0) {
+            for b in free.iter().skip(i + 1).filter(|b| b.robot != a.robot) {
+                // Two tracks whose spectra clearly differ hear different sources.
+                let similarity = signature_similarity(a.signature.as_deref(), b.signature.as_deref());
+                if similarity.is_some_and(|s| s < MIN_SIGNATURE_SIMILARITY) {
+                    continue;
+                }
                 let Some((keys, tri, newest)) = self.candidate(a, b, &free, config) else { continue };
-                scores.push(2.0 * self.gate * keys.len() as f64 - tri_chi2(&tri));
+                let bonus = similarity.map_or(0.0, |s| self.gate * s);
+                scores.push(2.0 * self.gate * keys.len() as f64 - tri_chi2(&tri) + bonus);
                 members.push(keys);
                 solutions.push((tri, newest));
             }
@@ -327,28 +350,32 @@ impl SoundMap {
     /// live source.
     fn candidate(
         &self,
-        a: &(u32, u64, Ray, Stamp),
-        b: &(u32, u64, Ray, Stamp),
-        free: &[(u32, u64, Ray, Stamp)],
+        a: &Free,
+        b: &Free,
+        free: &[Free],
         config: &TriangulationConfig,
     ) -> Option<Candidate> {
-        let pair = triangulate(&[a.2, b.2], config);
+        let pair = triangulate(&[a.ray, b.ray], config);
         let point = usable(&pair, config)?;
-        let mut keys = vec![(a.0, a.1), (b.0, b.1)];
-        let mut rays = vec![a.2, b.2];
-        let mut newest = a.3.max(b.3);
-        let mut robots = vec![a.0, b.0];
+        let mut keys = vec![(a.robot, a.track), (b.robot, b.track)];
+        let mut rays = vec![a.ray, b.ray];
+        let mut newest = a.stamp.max(b.stamp);
+        let mut robots = vec![a.robot, b.robot];
         for c in free {
-            if robots.contains(&c.0) {
+            if robots.contains(&c.robot) {
                 continue;
             }
-            let to = point - c.2.origin_in_map;
-            let angle = to.normalize().dot(&c.2.direction_in_map).clamp(-1.0, 1.0).acos();
-            if angle <= 3.0 * c.2.sigma_rad.max(1e-3) {
-                robots.push(c.0);
-                keys.push((c.0, c.1));
-                rays.push(c.2);
-                newest = newest.max(c.3);
+            let similarity = signature_similarity(a.signature.as_deref(), c.signature.as_deref());
+            if similarity.is_some_and(|s| s < MIN_SIGNATURE_SIMILARITY) {
+                continue;
+            }
+            let to = point - c.ray.origin_in_map;
+            let angle = to.normalize().dot(&c.ray.direction_in_map).clamp(-1.0, 1.0).acos();
+            if angle <= 3.0 * c.ray.sigma_rad.max(1e-3) {
+                robots.push(c.robot);
+                keys.push((c.robot, c.track));
+                rays.push(c.ray);
+                newest = newest.max(c.stamp);
             }
         }
         let tri = if rays.len() > 2 { triangulate(&rays, config) } else { pair };
@@ -420,12 +447,13 @@ impl SoundMap {
             let mut rays = Vec::new();
             let mut newest = Stamp::ZERO;
             for a in aligned {
-                let labelled = a.rays.iter().find(|(_, _, track)| {
-                    self.labels.get(&(a.robot, *track)).is_some_and(|l| l.source == s.id)
-                });
-                if let Some((ray, ..)) = labelled {
+                let labelled = a
+                    .rays
+                    .iter()
+                    .find(|t| self.labels.get(&(a.robot, t.track_id)).is_some_and(|l| l.source == s.id));
+                if let Some(t) = labelled {
                     robots.push(a.robot);
-                    rays.push(*ray);
+                    rays.push(t.ray);
                     newest = newest.max(a.stamp);
                 }
             }
