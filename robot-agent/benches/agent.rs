@@ -12,6 +12,14 @@
 //! SRP-PHAT: every point of the full 2562-point icosphere, same
 //! cross-correlations, grid resolution only (no refinement), as ODAS's
 //! non-hierarchical search would do.
+//!
+//! Signatures (24 bands, default refresh every 2 hops, and every hop): the
+//! stage alone (`Signatures::update` over STFT frames computed beforehand,
+//! 1, 2 and 4 tracks, 20 passes per run since the thread clock may tick in
+//! 4 ms steps) as a fraction of the default pipeline's CPU time on the same
+//! audio (target < 5 %); and on audio with two simultaneous sources (a white
+//! one and a high-passed one), the whole default pipeline against the stage
+//! for as many tracks as the pipeline signed per hop there (rounded up).
 
 #[path = "../tests/data/synth.rs"]
 mod synth;
@@ -130,6 +138,104 @@ fn stft_and_gcc(array: &ArrayGeometry, a: &Audio) -> f64 {
     best / a.seconds
 }
 
+/// Two simultaneous sources (white from `a`, high-passed white from `b`),
+/// 20 dB SNR, for the signature cost.
+fn two_source_audio(array: &ArrayGeometry) -> Audio {
+    let mut rng = synth::rng(77);
+    let mics = synth::positions(array);
+    let mut interleaved = Vec::new();
+    let mut truth = Vec::new();
+    for _ in 0..SEGMENTS / 2 {
+        let a = synth::random_direction(&array.default_region, &mut rng);
+        let mut b = synth::random_direction(&array.default_region, &mut rng);
+        while synth::angle_deg(&a, &b) < 60.0 {
+            b = synth::random_direction(&array.default_region, &mut rng);
+        }
+        let mut x = synth::plane_wave(&mics, &a, 16000.0, SEGMENT_LEN, &mut rng);
+        let y = synth::plane_wave(&mics, &b, 16000.0, SEGMENT_LEN, &mut rng);
+        for (x, y) in x.iter_mut().zip(&y) {
+            // First difference: a gentle high pass (+6 dB/octave).
+            for t in 0..SEGMENT_LEN {
+                x[t] += y[t] - y[(t + SEGMENT_LEN - 1) % SEGMENT_LEN];
+            }
+        }
+        synth::add_sensor_noise(&mut x, 20.0, &mut rng);
+        interleaved.extend(synth::interleave(&x, 0.05));
+        truth.push(a);
+    }
+    Audio { interleaved, truth, seconds: (SEGMENTS / 2 * SEGMENT_LEN) as f64 / 16000.0 }
+}
+
+/// CPU-s per audio-s of the pipeline with `config` (best of `RUNS`) and the
+/// mean number of tracks with a signature per hop.
+fn pipeline_cost(array: &ArrayGeometry, config: &PipelineConfig, a: &Audio) -> (f64, f64) {
+    let mut best = f64::INFINITY;
+    let (mut signed, mut hops) = (0usize, 0usize);
+    for run in 0..RUNS {
+        let mut p = Pipeline::new(array, config).unwrap();
+        let block = p.hop_len() * p.channels();
+        let t0 = thread_cpu_ns();
+        for (h, b) in a.interleaved.chunks_exact(block).enumerate() {
+            let r = p.process_hop(Stamp::from_ns(h as i64 * 8_000_000), b);
+            if run == 0 {
+                signed += r.reported.len();
+                hops += 1;
+            }
+            std::hint::black_box(r);
+        }
+        best = best.min((thread_cpu_ns() - t0) as f64 * 1e-9 / a.seconds);
+    }
+    (best, signed as f64 / hops.max(1) as f64)
+}
+
+/// Passes over the audio per timed run of the signature stage alone (the
+/// thread clock may tick in 4 ms steps: a pass takes about that much).
+const STAGE_REPEATS: usize = 20;
+
+/// CPU-s per audio-s of the signature stage alone for `tracks` tracks with
+/// fixed directions, over the STFT frames of `a` computed beforehand
+/// (`STAGE_REPEATS` passes per run), best of `RUNS`.
+fn signature_stage(array: &ArrayGeometry, config: &PipelineConfig, tracks: usize, a: &Audio) -> f64 {
+    use soundmap_agent::pipeline::TrackedDirection;
+    use soundmap_agent::signature::Signatures;
+    let dirs: Vec<TrackedDirection> = (0..tracks)
+        .map(|i| TrackedDirection {
+            track_id: i as u64 + 1,
+            direction_in_array: nalgebra::Unit::new_normalize(nalgebra::Vector3::new(
+                (i as f64).cos(),
+                (i as f64).sin(),
+                0.5,
+            )),
+            activity: 1.0,
+            angular_sigma_rad: 0.01,
+            confirmed: true,
+        })
+        .collect();
+    let reported: Vec<usize> = (0..tracks).collect();
+    let mut out = Vec::with_capacity(tracks * config.signature.bands);
+    // Every hop's spectra first (not timed), then the stage alone over them.
+    let mut stft = Stft::new(array.channels(), config.frame_len, config.hop_len, config.window).unwrap();
+    let mut frames: Vec<Vec<realfft::num_complex::Complex<f32>>> = Vec::new();
+    for b in a.interleaved.chunks_exact(config.hop_len * array.channels()) {
+        if stft.push_hop(b) {
+            frames.push(stft.spectra().to_vec());
+        }
+    }
+    let mut best = f64::INFINITY;
+    for _ in 0..RUNS {
+        let mut sig = Signatures::new(array, config).unwrap();
+        let t0 = thread_cpu_ns();
+        for _ in 0..STAGE_REPEATS {
+            for spectra in &frames {
+                sig.update(spectra, &dirs, &reported, &mut out);
+                std::hint::black_box(&out);
+            }
+        }
+        best = best.min((thread_cpu_ns() - t0) as f64 * 1e-9 / (a.seconds * STAGE_REPEATS as f64));
+    }
+    best
+}
+
 fn main() {
     let array = ArrayGeometry::load("16soundsusb-pioneer").unwrap();
     let a = audio(&array);
@@ -197,6 +303,28 @@ fn main() {
         "{:<76} {:>14.5}",
         "  of which STFT + PHAT + GCC of 120 pairs (60 complex 256-point IFFTs)", gcc
     );
+    let two = two_source_audio(&array);
+    let (two_cpu, signed) = pipeline_cost(&array, &default, &two);
+    let k = (signed.ceil() as usize).max(1);
+    let stage = signature_stage(&array, &default, k, &two);
+    println!(
+        "two-source audio: default pipeline {two_cpu:.5} CPU-s/audio-s with {signed:.2} signed tracks/hop; \
+         signature stage alone for {k} tracks {stage:.5}: {:.2} % of it (target < 5 %)",
+        100.0 * stage / two_cpu
+    );
+    let mut every_hop = default.clone();
+    every_hop.signature.update_interval_hops = 1;
+    for (interval, config) in [(2, &default), (1, &every_hop)] {
+        for k in [1, 2, 4] {
+            let stage = signature_stage(&array, config, k, &a);
+            println!(
+                "signature stage alone, {k} track(s) × 24 bands, refreshed every {interval} hop(s): {stage:.5} \
+                 CPU-s/audio-s = {:.2} % of the default pipeline ({:.5})",
+                100.0 * stage / results[0].cpu_per_audio_s,
+                results[0].cpu_per_audio_s
+            );
+        }
+    }
     let ours = &results[0];
     let reference = &results[4];
     println!(

@@ -6,7 +6,8 @@
 //! - [`stft`]: framing, windowing and real FFTs of multichannel audio.
 //! - [`srp`]: SRP-PHAT on a hierarchical sphere grid with sub-grid refinement.
 //! - [`doa_tracker`]: Kalman tracking of DoAs on the sphere (ids, activity).
-//! - [`pipeline`]: STFT → SRP-PHAT → tracker, one hop at a time, allocation-free.
+//! - [`signature`]: per-track spectral signatures (band energies of the array steered at each track).
+//! - [`pipeline`]: STFT → SRP-PHAT → tracker → signatures, one hop at a time, allocation-free.
 //!
 //! - [`agent`]: the agent core: hops and poses in; observations, command
 //!   replies and navigation goals out (no I/O; the live agent, the simulator and
@@ -35,6 +36,7 @@ pub mod navigator;
 pub mod odas;
 pub mod pipeline;
 pub mod pose;
+pub mod signature;
 pub mod srp;
 pub mod stft;
 

@@ -1,4 +1,5 @@
-//! The agent's DSP chain, one hop at a time: STFT → SRP-PHAT → DoA tracker.
+//! The agent's DSP chain, one hop at a time: STFT → SRP-PHAT → DoA tracker →
+//! spectral signatures of the reported tracks.
 //!
 //! This is what the CLI, the simulator and the live agent call. Everything is
 //! planned and allocated in [`Pipeline::new`]; [`Pipeline::process_hop`]
@@ -14,10 +15,12 @@ use soundmap_proto::Stamp;
 use crate::array::ArrayGeometry;
 use crate::doa_tracker::DoaTracker;
 use crate::error::AgentError;
+use crate::signature::Signatures;
 use crate::srp::Srp;
 use crate::stft::{Stft, Window};
 
 pub use crate::doa_tracker::{TrackedDirection, TrackerConfig};
+pub use crate::signature::SignatureConfig;
 pub use crate::srp::{PotentialSource, SrpConfig};
 
 /// Pipeline settings (TOML section of the agent config). Defaults follow
@@ -45,6 +48,12 @@ pub struct PipelineConfig {
     /// Default 1.0 (theory §5.1 expects 2–4° per axis for talkers in rooms;
     /// a white-noise source is easier).
     pub doa_sigma_floor_deg: f64,
+    /// Most tracks reported per observation (K, 1..=64; default 4): the
+    /// confirmed tracks, most active first. Declared in the hello as
+    /// `max_tracks`. (The tracker may hold more, `tracker.max_tracks`.)
+    pub max_reported_tracks: usize,
+    /// Spectral signatures of the reported tracks (`[pipeline.signature]`).
+    pub signature: SignatureConfig,
 }
 
 impl Default for PipelineConfig {
@@ -57,7 +66,25 @@ impl Default for PipelineConfig {
             srp: SrpConfig::default(),
             tracker: TrackerConfig::default(),
             doa_sigma_floor_deg: 1.0,
+            max_reported_tracks: 4,
+            signature: SignatureConfig::default(),
         }
+    }
+}
+
+impl PipelineConfig {
+    /// `hello` declaring what this pipeline sends: at most
+    /// [`PipelineConfig::max_reported_tracks`] tracks per observation and
+    /// signatures in the bands of [`SignatureConfig::band_edges_hz`] (none when
+    /// signatures are off). Errors name a bad signature setting.
+    pub fn declare_tracks(
+        &self,
+        mut hello: soundmap_proto::Hello,
+    ) -> Result<soundmap_proto::Hello, AgentError> {
+        let edges = self.signature.band_edges_hz(self.sample_rate_hz)?;
+        hello.max_tracks = Some(self.max_reported_tracks as u32);
+        hello.signature_bands = (!edges.is_empty()).then_some(edges);
+        Ok(hello)
     }
 }
 
@@ -70,14 +97,41 @@ pub struct FrameResult {
     pub potentials: Vec<PotentialSource>,
     /// Current tracks (tentative ones have `confirmed = false`).
     pub tracks: Vec<TrackedDirection>,
+    /// The tracks that are reported, as indices into `tracks`: the confirmed
+    /// ones, most active first (ties: lower id first), at most
+    /// [`PipelineConfig::max_reported_tracks`].
+    pub reported: Vec<usize>,
+    /// Number of signature bands B (0 when signatures are off).
+    pub signature_bands: usize,
+    /// Signatures of the reported tracks, dB (see [`crate::signature`]): B
+    /// values per entry of `reported`, in that order.
+    pub signatures_db: Vec<f32>,
 }
 
 impl FrameResult {
-    /// The confirmed tracks as DoAs, with the tracker's own σ. The agent core
-    /// floors σ ([`PipelineConfig::doa_sigma_floor_deg`], see [`crate::agent`])
-    /// before anything is sent.
+    /// The reported tracks (confirmed, most active first, at most K) as DoAs,
+    /// with the tracker's own σ and their signatures. The agent core floors σ
+    /// ([`PipelineConfig::doa_sigma_floor_deg`], see [`crate::agent`]) before
+    /// anything is sent.
     pub fn confirmed_doas(&self) -> Vec<soundmap_proto::TrackedDoa> {
-        self.tracks.iter().filter(|t| t.confirmed).map(|t| t.to_doa(0.0)).collect()
+        let b = self.signature_bands;
+        self.reported
+            .iter()
+            .enumerate()
+            .map(|(i, &t)| {
+                let mut d = self.tracks[t].to_doa(0.0);
+                d.signature =
+                    self.signatures_db.get(i * b..(i + 1) * b).filter(|_| b > 0).map(<[f32]>::to_vec);
+                d
+            })
+            .collect()
+    }
+
+    /// Signature of the reported track with id `track_id`, dB per band.
+    pub fn signature_of(&self, track_id: u64) -> Option<&[f32]> {
+        let b = self.signature_bands;
+        let i = self.reported.iter().position(|&t| self.tracks[t].track_id == track_id)?;
+        self.signatures_db.get(i * b..(i + 1) * b).filter(|_| b > 0)
     }
 }
 
@@ -89,6 +143,7 @@ pub struct Pipeline {
     stft: Stft,
     srp: Srp,
     tracker: DoaTracker,
+    signatures: Signatures,
     result: FrameResult,
     /// Offset from a hop's first sample to its frame's DoA stamp, ns.
     stamp_offset_ns: i64,
@@ -117,6 +172,8 @@ impl Pipeline {
         let srp = Srp::new(array, fs, config.frame_len, &config.srp)?;
         let hop_s = config.hop_len as f64 / fs as f64;
         let tracker = DoaTracker::new(&config.tracker, hop_s, config.srp.max_sources, srp.noise_model())?;
+        let signatures = Signatures::new(array, config)?;
+        let (k, bands) = (signatures.max_tracks(), signatures.bands());
         let offset_samples = config.hop_len as f64 - config.frame_len as f64 / 2.0;
         Ok(Pipeline {
             channels: array.channels(),
@@ -124,10 +181,14 @@ impl Pipeline {
             stft,
             srp,
             tracker,
+            signatures,
             result: FrameResult {
                 stamp: Stamp::ZERO,
                 potentials: Vec::with_capacity(config.srp.max_sources),
                 tracks: Vec::with_capacity(config.tracker.max_tracks),
+                reported: Vec::with_capacity(config.tracker.max_tracks.max(k)),
+                signature_bands: bands,
+                signatures_db: Vec::with_capacity(k * bands),
             },
             stamp_offset_ns: (offset_samples * 1e9 / fs as f64).round() as i64,
             doa_sigma_floor_rad: floor.to_radians(),
@@ -174,6 +235,11 @@ impl Pipeline {
         &self.tracker
     }
 
+    /// The signatures (band edges, number of reported tracks).
+    pub fn signatures(&self) -> &Signatures {
+        &self.signatures
+    }
+
     /// Processes one hop. `interleaved` holds exactly `hop_len` samples per
     /// channel, interleaved (`s[t*channels + c]`), f32 full scale ±1 (non-finite
     /// samples count as 0). `first_sample` is the Stamp of the hop's first
@@ -189,12 +255,24 @@ impl Pipeline {
             "process_hop needs hop_len × channels interleaved samples"
         );
         self.result.stamp = first_sample.plus_ns(self.stamp_offset_ns);
+        let r = &mut self.result;
         if self.stft.push_hop(interleaved) {
-            self.srp.process(self.stft.spectra(), &mut self.result.potentials);
-            self.tracker.update(&self.result.potentials, &mut self.result.tracks);
+            self.srp.process(self.stft.spectra(), &mut r.potentials);
+            self.tracker.update(&r.potentials, &mut r.tracks);
+            r.reported.clear();
+            r.reported.extend((0..r.tracks.len()).filter(|&i| r.tracks[i].confirmed));
+            let tracks = &r.tracks;
+            r.reported.sort_unstable_by(|&a, &b| {
+                let (a, b) = (&tracks[a], &tracks[b]);
+                b.activity.total_cmp(&a.activity).then(a.track_id.cmp(&b.track_id))
+            });
+            r.reported.truncate(self.signatures.max_tracks());
+            self.signatures.update(self.stft.spectra(), &r.tracks, &r.reported, &mut r.signatures_db);
         } else {
-            self.result.potentials.clear();
-            self.result.tracks.clear();
+            r.potentials.clear();
+            r.tracks.clear();
+            r.reported.clear();
+            r.signatures_db.clear();
         }
         &self.result
     }
@@ -230,8 +308,11 @@ impl Pipeline {
     pub fn reset(&mut self) {
         self.stft.reset();
         self.tracker.reset();
+        self.signatures.reset();
         self.result.potentials.clear();
         self.result.tracks.clear();
+        self.result.reported.clear();
+        self.result.signatures_db.clear();
     }
 }
 
