@@ -15,7 +15,11 @@
 //! - DoAs stamped outside a robot's poses (audio longer than poses, or a late
 //!   first pose) or inside a gap longer than `--max-pose-gap-s`: not sent,
 //!   counted, and reported (the run goes on);
-//! - estimates outside the truth trajectory: kept, with empty RSE.
+//! - estimates outside every truth trajectory: kept, with empty RSE.
+//!
+//! Several sources: one `--truth` per source (`FILE.tum[@A-B,C-D]`, the
+//! intervals when it played, [`parse_truth`]); each estimate is scored against
+//! the nearest source playing at its stamp ([`crate::report::multi`]).
 
 use std::collections::BTreeMap;
 use std::path::PathBuf;
@@ -27,15 +31,16 @@ use soundmap_agent::audio::{self, AudioInput, AudioSource, BlockOptions, stamp_o
 use soundmap_agent::navigator::DecliningNavigator;
 use soundmap_agent::pipeline::{Pipeline, PipelineConfig};
 use soundmap_agent::pose::tum::{PoseTimeMapping, read_tum};
-use soundmap_agent::pose::{PoseBuffer, PoseBufferConfig, StampedPose};
+use soundmap_agent::pose::{PoseBufferConfig, StampedPose};
 use soundmap_proto::{Hello, RobotId, Stamp, wire};
 use soundmap_server::CoordinatorConfig;
 
 use crate::error::SimError;
-use crate::report::{RobotPath, RunRecord, TimelineRow};
+use crate::report::multi::nearest_truth_among;
+use crate::report::{RobotPath, RunRecord, SourceTruth, TimelineRow};
 use crate::runner::fleet::Fleet;
 use crate::runner::robot::pose_covariance;
-use crate::runner::rows::row_of;
+use crate::runner::rows::{point, row_of};
 use crate::runner::{BLOCK_LEN, SIM_EPOCH, exchange};
 
 /// One robot's recording, as given on the command line:
@@ -98,15 +103,70 @@ pub fn parse_robot(s: &str) -> Result<RobotRecording, String> {
     Ok(r)
 }
 
+/// One true source trajectory, as given on the command line:
+/// `FILE.tum[@START-END,START-END…]` (seconds on the pose files' clock). The
+/// intervals say when the source played (`[start, end)` each); without them it
+/// always did. A path holding `@` ends with a bare `@` (always on).
+#[derive(Clone, Debug, PartialEq)]
+pub struct TruthTrack {
+    /// TUM trajectory of the source (orientation ignored).
+    pub path: PathBuf,
+    /// When it played; empty: always.
+    pub active: Vec<(f64, f64)>,
+}
+
+impl TruthTrack {
+    /// A source that always played.
+    pub fn always(path: impl Into<PathBuf>) -> Self {
+        TruthTrack { path: path.into(), active: Vec::new() }
+    }
+}
+
+/// Parses `FILE[@A-B,C-D…]` (the `--truth` argument).
+pub fn parse_truth(s: &str) -> Result<TruthTrack, String> {
+    let Some((path, spec)) = s.rsplit_once('@') else { return Ok(TruthTrack::always(s)) };
+    if path.is_empty() {
+        return Err(format!("{s:?}: no file before '@'"));
+    }
+    let mut active: Vec<(f64, f64)> = Vec::new();
+    for part in spec.split(',').filter(|p| !p.trim().is_empty()) {
+        let bad = || format!("{part:?}: expected START-END in seconds, e.g. {path}@0-12,20-30");
+        let (a, b) = part.split_once('-').ok_or_else(bad)?;
+        let a: f64 = a.trim().parse().map_err(|_| bad())?;
+        let b: f64 = b.trim().parse().map_err(|_| bad())?;
+        if !(a.is_finite() && b.is_finite() && a >= 0.0 && a < b) {
+            return Err(format!("{part:?}: need 0 ≤ START < END"));
+        }
+        if active.last().is_some_and(|(_, end)| a < *end) {
+            return Err(format!("{part:?}: intervals must be sorted and disjoint"));
+        }
+        active.push((a, b));
+    }
+    Ok(TruthTrack { path: path.into(), active })
+}
+
+/// The `@A-B,C-D` suffix of a `--truth` argument for these intervals ("" for always).
+pub fn format_intervals(active: &[(f64, f64)]) -> String {
+    if active.is_empty() {
+        return String::new();
+    }
+    let parts: Vec<String> = active.iter().map(|(a, b)| format!("{a}-{b}")).collect();
+    format!("@{}", parts.join(","))
+}
+
 /// Arguments of `soundmap-sim replay`.
 #[derive(Clone, Debug, clap::Args)]
 pub struct ReplayArgs {
     /// A robot's recording: id=ID,audio=F.wav,poses=F.tum,array=PRESET|F.toml[,start=S][,pose_std_m=M,yaw_std_deg=D].
     #[arg(long = "robot", required = true, value_parser = parse_robot)]
     pub robots: Vec<RobotRecording>,
-    /// True source trajectory (TUM); without it, no RSE is computed.
-    #[arg(long)]
-    pub truth: Option<PathBuf>,
+    /// A true source trajectory (TUM), repeatable, one per source in order:
+    /// FILE.tum[@START-END,START-END...] with the intervals (s) when it played
+    /// (always without them), e.g. --truth s0.tum --truth s1.tum@0-12,20-30.
+    /// Each estimate is scored against the nearest source playing at its stamp;
+    /// without any, no RSE is computed.
+    #[arg(long = "truth", value_parser = parse_truth)]
+    pub truths: Vec<TruthTrack>,
     /// Output directory.
     #[arg(long)]
     pub out: PathBuf,
@@ -246,10 +306,19 @@ impl Replayed {
     }
 }
 
-/// A timeline row for estimate `e`, scored against the truth when there is one.
-fn score(e: &wire::SourceEstimate, robots: &[Replayed], truth: Option<&PoseBuffer>) -> TimelineRow {
+/// A timeline row for estimate `e`, scored against the nearest true source
+/// playing at its stamp among those whose trajectory covers it.
+fn score(e: &wire::SourceEstimate, robots: &[Replayed], truths: &[SourceTruth]) -> TimelineRow {
     let at = Stamp::from_ns(e.stamp_ns);
-    let truth_at = truth.and_then(|b| b.lookup(at).ok()).map(|p| p.map_from_base.translation.vector.into());
+    let t_s = at.seconds_since(SIM_EPOCH);
+    let covering: Vec<usize> = (0..truths.len())
+        .filter(|k| {
+            let p = &truths[*k].path;
+            p.first().is_some_and(|(t0, _)| *t0 <= t_s) && p.last().is_some_and(|(t1, _)| t_s <= *t1)
+        })
+        .collect();
+    let truth_at = nearest_truth_among(truths, &covering, t_s, point(&e.position_in_map_m))
+        .and_then(|k| Some((k, truths[k].position_at(t_s)?)));
     let arrays: Vec<Point3<f64>> =
         robots
             .iter()
@@ -262,17 +331,17 @@ fn score(e: &wire::SourceEstimate, robots: &[Replayed], truth: Option<&PoseBuffe
     row_of(e, SIM_EPOCH, truth_at, if truth_at.is_some() { &arrays } else { &[] })
 }
 
-fn load_poses(path: &std::path::Path, max_gap_s: f64) -> Result<(Vec<StampedPose>, PoseBuffer), SimError> {
-    let poses = read_tum(path, PoseTimeMapping::new(0.0, SIM_EPOCH))?;
+/// A true source's trajectory and intervals, read from its TUM file.
+fn load_truth(track: &TruthTrack) -> Result<SourceTruth, SimError> {
+    let poses = read_tum(&track.path, PoseTimeMapping::new(0.0, SIM_EPOCH))?;
     if poses.is_empty() {
-        return Err(SimError::Replay(format!("{}: no poses", path.display())));
+        return Err(SimError::Replay(format!("{}: no poses", track.path.display())));
     }
-    let config = PoseBufferConfig { capacity: poses.len().max(1), max_gap_s, ..PoseBufferConfig::default() };
-    let mut buffer = PoseBuffer::new(path.display().to_string(), config)?;
-    for p in &poses {
-        buffer.push(p.clone())?;
-    }
-    Ok((poses, buffer))
+    let path = poses
+        .iter()
+        .map(|p| (p.stamp.seconds_since(SIM_EPOCH), p.map_from_base.translation.vector.into()))
+        .collect();
+    Ok(SourceTruth { path, active: track.active.clone() })
 }
 
 /// Replays the recordings and returns what the coordinator published.
@@ -305,10 +374,7 @@ async fn replay_async(args: &ReplayArgs) -> Result<RunRecord, SimError> {
         robot.advance()?;
         robots.push(robot);
     }
-    let truth = match &args.truth {
-        Some(p) => Some(load_poses(p, 1e9)?),
-        None => None,
-    };
+    let truths = args.truths.iter().map(load_truth).collect::<Result<Vec<_>, _>>()?;
     let hellos: Vec<Hello> = robots.iter().map(|r| r.core.hello().clone()).collect();
     let t_start = robots.iter().map(|r| r.start).min().unwrap_or(SIM_EPOCH);
     let mut fleet = Fleet::start(coordinator, &hellos, t_start).await?;
@@ -321,7 +387,7 @@ async fn replay_async(args: &ReplayArgs) -> Result<RunRecord, SimError> {
         let now = robots[i].hop(&mut fleet, i).await?;
         end = end.max(now);
         for e in fleet.drain_estimates()? {
-            rows.push(score(&e, &robots, truth.as_ref().map(|(_, b)| b)));
+            rows.push(score(&e, &robots, &truths));
         }
         robots[i].advance()?;
     }
@@ -335,14 +401,14 @@ async fn replay_async(args: &ReplayArgs) -> Result<RunRecord, SimError> {
             );
         }
     }
-    let source_path = truth
-        .map(|(list, _)| {
-            list.iter()
-                .step_by((list.len() / 4000).max(1))
-                .map(|p| (p.stamp.seconds_since(SIM_EPOCH), p.map_from_base.translation.vector.into()))
-                .collect()
+    // The record keeps at most ~4000 samples per source path (for the map).
+    let sources = truths
+        .into_iter()
+        .map(|t| SourceTruth {
+            path: t.path.iter().step_by((t.path.len() / 4000).max(1)).copied().collect(),
+            active: t.active,
         })
-        .unwrap_or_default();
+        .collect();
     Ok(RunRecord {
         name: "replay".into(),
         duration_s: end.seconds_since(t_start),
@@ -351,7 +417,7 @@ async fn replay_async(args: &ReplayArgs) -> Result<RunRecord, SimError> {
         rows,
         robot_ids: robots.iter().map(|r| r.id.to_string()).collect(),
         robots: paths,
-        source_path,
+        sources,
         room: None,
         seed: None,
         commands: vec![],
@@ -374,5 +440,21 @@ mod tests {
             parse_robot("id=r1,audio=a.wav,poses=p.tum,array=x,start=soon").unwrap_err().contains("start")
         );
         assert!(parse_robot("id=r 1,audio=a.wav,poses=p.tum,array=x").is_err());
+    }
+
+    #[test]
+    fn truth_argument() {
+        assert_eq!(parse_truth("rec/source.tum").unwrap(), TruthTrack::always("rec/source.tum"));
+        let t = parse_truth("s2.tum@0-12,20-30.5").unwrap();
+        assert_eq!((t.path, t.active), (PathBuf::from("s2.tum"), vec![(0.0, 12.0), (20.0, 30.5)]));
+        assert_eq!(parse_truth("odd@name.tum@").unwrap(), TruthTrack::always("odd@name.tum"));
+        assert!(parse_truth("s.tum@12-3").unwrap_err().contains("START < END"));
+        assert!(parse_truth("s.tum@0-5,4-8").unwrap_err().contains("disjoint"));
+        assert!(parse_truth("s.tum@soon").unwrap_err().contains("START-END"));
+        assert!(parse_truth("@0-1").is_err());
+        assert_eq!(format_intervals(&[(0.5, 20.0), (25.0, 30.0)]), "@0.5-20,25-30");
+        assert_eq!(format_intervals(&[]), "");
+        let round = parse_truth(&format!("x.tum{}", format_intervals(&[(0.5, 12.0)]))).unwrap();
+        assert_eq!(round.active, vec![(0.5, 12.0)]);
     }
 }

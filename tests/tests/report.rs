@@ -9,7 +9,7 @@ use nalgebra::Point3;
 use serde_json::Value;
 use soundmap_sim::SimError;
 use soundmap_sim::report::{
-    PLOT_STEMS, RobotPath, RoomOutline, RunRecord, TimelineRow, format_comparison_table,
+    PLOT_STEMS, RobotPath, RoomOutline, RunRecord, SourceTruth, TimelineRow, format_comparison_table,
     format_summary_table, write_comparison, write_reports,
 };
 
@@ -39,6 +39,8 @@ fn row(t_s: f64, theta_deg: f64, rse_m: f64) -> TimelineRow {
         robots: vec!["r1".into(), "r2".into()],
         truth_in_map: Some(truth),
         covariance: None,
+        source_id: 1,
+        truth_source: Some(0),
     }
 }
 
@@ -62,7 +64,10 @@ fn record(rows: Vec<TimelineRow>, duration_s: f64) -> RunRecord {
                 goals: vec![],
             },
         ],
-        source_path: vec![(0.0, Point3::new(2.0, 1.0, 1.2)), (5.0, Point3::new(2.0, 2.0, 1.2))],
+        sources: vec![SourceTruth::always(vec![
+            (0.0, Point3::new(2.0, 1.0, 1.2)),
+            (5.0, Point3::new(2.0, 2.0, 1.2)),
+        ])],
         room: Some(RoomOutline {
             floor: vec![[0.0, 0.0], [4.0, 0.0], [4.0, 3.0], [0.0, 3.0]],
             obstacles: vec![vec![[1.5, 2.0], [2.5, 2.0], [2.5, 2.5], [1.5, 2.5]]],
@@ -114,7 +119,8 @@ fn timeline_has_the_columns_and_values_of_the_rows() {
 
     let (header, cells) = read_csv(&dir.join("timeline.csv"));
     let expected = "t_s,d1_m,d2_m,theta_deg,gdop,est_x_m,est_y_m,est_z_m,truth_x_m,truth_y_m,truth_z_m,rse_m,\
-                    true_theta_deg,theta_in_band,trusted,method,robots,tri_x_m,tri_y_m,tri_z_m,tri_rse_m,nees";
+                    true_theta_deg,theta_in_band,trusted,method,robots,tri_x_m,tri_y_m,tri_z_m,tri_rse_m,nees,\
+                    source_id,truth_source";
     assert_eq!(header.join(","), expected);
     assert_eq!(cells.len(), 3);
 
@@ -171,11 +177,12 @@ fn a_record_without_truth_has_empty_rse_and_null_statistics() {
             true_theta_deg: None,
             truth_in_map: None,
             covariance: None,
+            truth_source: None,
             ..row(t, theta - 1.0, 0.0)
         })
         .collect();
     let mut rec = record(rows, 1.5);
-    rec.source_path.clear();
+    rec.sources.clear();
     rec.room = None;
     rec.robots.clear();
     rec.seed = None;
@@ -479,6 +486,8 @@ fn realistic_run(active: bool) -> RunRecord {
                 robots: vec!["r1".into(), "r2".into()],
                 truth_in_map: Some(s),
                 covariance: None,
+                source_id: 1,
+                truth_source: Some(0),
             });
         }
         t += 0.1;
@@ -498,7 +507,9 @@ fn realistic_run(active: bool) -> RunRecord {
         rows,
         robot_ids: vec!["r1".into(), "r2".into()],
         robots,
-        source_path: (0..=600).map(|i| f64::from(i) * 0.1).map(|t| (t, source_at(t))).collect(),
+        sources: vec![SourceTruth::always(
+            (0..=600).map(|i| f64::from(i) * 0.1).map(|t| (t, source_at(t))).collect(),
+        )],
         room: Some(RoomOutline {
             floor: vec![[0.0, 0.0], [6.0, 0.0], [6.0, 5.0], [2.0, 5.0], [0.0, 3.5]],
             obstacles: vec![vec![[0.6, 4.0], [1.4, 4.0], [1.2, 3.2]]],

@@ -37,6 +37,21 @@ fn bad_scenarios_name_the_file_and_key() {
         (good.replace("z_m = 1.2", "z_m = 9.0"), "trial.toml: sources[0].path[0]:"),
         (good.replace("kind = \"white_noise\"", "kind = \"speech\""), "trial.toml: sources[0].signal"),
         (good.replace("[noise]", "[noise\n"), "trial.toml: (document):"),
+        (
+            good.replace(
+                "kind = \"white_noise\"",
+                "kind = \"talker\", low_hz = 300.0, high_hz = 3000.0, syllable_hz = 50.0",
+            ),
+            "trial.toml: sources[0].signal.syllable_hz:",
+        ),
+        (
+            good.replace("kind = \"white_noise\"", "kind = \"talker\", low_hz = 3000.0, high_hz = 300.0"),
+            "trial.toml: sources[0].signal.band_hz:",
+        ),
+        (
+            good.replace("kind = \"white_noise\"", "kind = \"fan\", hum_hz = 5000.0"),
+            "sources[0].signal.hum_hz:",
+        ),
         // A missing key is named itself, not its table or the document.
         (good.replace("duration_s = 4.0\n", ""), "trial.toml: duration_s: missing"),
         (good.replace("id = \"turtlebot\"\n", ""), "trial.toml: robots[1].id: missing"),

@@ -3,7 +3,7 @@
 
 use std::path::PathBuf;
 
-use soundmap_sim::replay::{ReplayArgs, RobotRecording, replay};
+use soundmap_sim::replay::{ReplayArgs, RobotRecording, TruthTrack, replay};
 use soundmap_sim::report::write_reports;
 use soundmap_sim::runner::robot::slam_pose_std;
 use soundmap_sim::runner::{RunOptions, run};
@@ -84,7 +84,7 @@ fn replay_of_a_recording_gives_the_same_estimates() {
         .collect();
     let args = ReplayArgs {
         robots,
-        truth: Some(dir.join("source.tum")),
+        truths: vec![TruthTrack::always(dir.join("source.tum"))],
         out: dir.join("replay"),
         coordinator_config: None,
         pipeline: None,

@@ -99,7 +99,7 @@ fn live_agent_and_replay_send_the_same_observations() {
         .collect();
     let args = ReplayArgs {
         robots,
-        truth: None,
+        truths: vec![],
         out: dir.join("replay"),
         coordinator_config: Some(coordinator_toml),
         pipeline: None,

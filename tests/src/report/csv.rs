@@ -19,6 +19,8 @@
 //! | `tri_x_m`, `tri_y_m`, `tri_z_m` | triangulation beside a filtered estimate (m) |
 //! | `tri_rse_m` | its RSE (m) |
 //! | `nees` | eᵀP⁻¹e of the published estimate against the truth, P its published covariance |
+//! | `source_id` | the estimate's `source_id` as published (0: no live track) |
+//! | `truth_source` | index of the true source the row is scored against: the nearest one active at the stamp |
 //!
 //! The set of columns never depends on the data: a value that is absent (no
 //! estimate position, no truth in a replay without truth, no triangulation) is an
@@ -66,6 +68,8 @@ pub fn timeline_header(record: &RunRecord) -> Vec<String> {
             "tri_z_m",
             "tri_rse_m",
             "nees",
+            "source_id",
+            "truth_source",
         ]
         .map(String::from),
     );
@@ -95,6 +99,8 @@ pub fn timeline_csv(record: &RunRecord) -> String {
         point(&mut cells, row.triangulation_in_map);
         cells.push(opt(row.triangulation_rse_m()));
         cells.push(opt(row.nees()));
+        cells.push(row.source_id.to_string());
+        cells.push(row.truth_source.map_or_else(String::new, |k| k.to_string()));
         let _ = writeln!(out, "{}", cells.join(","));
     }
     out

@@ -6,12 +6,12 @@
 //! |---|---|
 //! | `timeline.csv` | one row per published estimate ([`csv`] lists the columns) |
 //! | `theta_bins.csv` | RSE mean/std/count in 15° bins of θ ([`bins`]) |
-//! | `summary.json` | the run's figures ([`Summary`]; conventions in [`summary`]) |
+//! | `summary.json` | the run's figures ([`Summary`]; conventions in [`summary`]; the `multi_target` object in [`multi`]) |
 //! | `commands.csv` | reposition commands the robots received: `t_s, robot, detail` |
 //! | `distances_rse.{svg,png}` | d1 … dN and RSE over time |
 //! | `theta_rse.{svg,png}` | θ over time with the band, and RSE |
 //! | `rse_vs_theta.{svg,png}` | mean RSE ± std per 15° bin over the scatter of all estimates |
-//! | `map.{svg,png}` | top-down map: room, robot paths and goals, true source, estimates by RSE |
+//! | `map.{svg,png}` | top-down map: room, robot paths and goals, every true source (numbered), estimates by RSE (one source) or by `source_id` (several) |
 //!
 //! [`write_comparison`] does it for one scenario run with active positioning on
 //! and off, side by side. [`print_summary_table`] and [`print_comparison_table`]
@@ -21,6 +21,7 @@ pub mod bins;
 pub mod comparison;
 pub mod csv;
 pub mod derived;
+pub mod multi;
 pub mod plots;
 pub mod record;
 pub mod stats;
@@ -31,7 +32,8 @@ use std::path::Path;
 
 pub use comparison::write_comparison;
 pub use derived::ThetaSource;
-pub use record::{RobotPath, RoomOutline, RunRecord, TimelineRow};
+pub use multi::MultiTargetSummary;
+pub use record::{RobotPath, RoomOutline, RunRecord, SourceTruth, TimelineRow};
 pub use summary::{Summary, TriangulationSummary};
 pub use table::{format_comparison_table, format_summary_table, print_comparison_table, print_summary_table};
 

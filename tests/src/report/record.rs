@@ -35,6 +35,12 @@ pub struct TimelineRow {
     pub truth_in_map: Option<Point3<f64>>,
     /// Covariance published with the best estimate (m², map frame), when there is one.
     pub covariance: Option<Matrix3<f64>>,
+    /// The estimate's `source_id` as published (0: no live track followed it).
+    pub source_id: u64,
+    /// Index of the true source the row is scored against (`truth_in_map`,
+    /// `distances_m`, `true_theta_deg`): the nearest one active at the stamp
+    /// ([`super::multi::nearest_truth`]); `None` without truth.
+    pub truth_source: Option<usize>,
 }
 
 impl TimelineRow {
@@ -70,6 +76,43 @@ pub struct RobotPath {
     pub goals: Vec<(f64, f64, f64)>,
 }
 
+/// The truth of one source: where it was and when it played.
+#[derive(Clone, Debug, PartialEq)]
+pub struct SourceTruth {
+    /// Positions over time: (t_s, position in the map frame, m), in time order;
+    /// linearly interpolated between samples, held outside them.
+    pub path: Vec<(f64, Point3<f64>)>,
+    /// When it played: `[start_s, end_s)` intervals; empty means always.
+    pub active: Vec<(f64, f64)>,
+}
+
+impl SourceTruth {
+    /// A source that always plays.
+    pub fn always(path: Vec<(f64, Point3<f64>)>) -> Self {
+        SourceTruth { path, active: Vec::new() }
+    }
+
+    /// Whether it plays at `t_s`.
+    pub fn active_at(&self, t_s: f64) -> bool {
+        self.active.is_empty() || self.active.iter().any(|(a, b)| *a <= t_s && t_s < *b)
+    }
+
+    /// Its position at `t_s` (`None` with an empty path).
+    pub fn position_at(&self, t_s: f64) -> Option<Point3<f64>> {
+        let p = &self.path;
+        let i = p.partition_point(|(t, _)| *t <= t_s);
+        if i == 0 {
+            return p.first().map(|(_, x)| *x);
+        }
+        if i == p.len() {
+            return p.last().map(|(_, x)| *x);
+        }
+        let ((t0, a), (t1, b)) = (p[i - 1], p[i]);
+        let u = if t1 > t0 { (t_s - t0) / (t1 - t0) } else { 0.0 };
+        Some(a + (b - a) * u)
+    }
+}
+
 /// The room as drawn on the top-down map.
 #[derive(Clone, Debug, PartialEq)]
 pub struct RoomOutline {
@@ -96,8 +139,9 @@ pub struct RunRecord {
     pub robot_ids: Vec<String>,
     /// Robot paths (empty in replay without poses).
     pub robots: Vec<RobotPath>,
-    /// True source path: (t_s, position), empty when unknown.
-    pub source_path: Vec<(f64, Point3<f64>)>,
+    /// Every true source (scenario order, or `--truth` order in a replay); empty
+    /// when unknown. Source 0 is the one the single-source figures were made for.
+    pub sources: Vec<SourceTruth>,
     /// Room outline for the map, when known.
     pub room: Option<RoomOutline>,
     /// Seed of the run (simulation only).

@@ -14,12 +14,17 @@
 //!   is closed, `[theta_band_deg[0], theta_band_deg[1]]`.
 //! - "After convergence" means rows with `t_s ≥ time_to_band_s`, the first time
 //!   θ was in the band.
+//! - `multi_target` scores every true source against every published source
+//!   id on a 0.1 s time grid ([`super::multi`] defines the sets and figures);
+//!   the figures above stay those of the rows, each scored against its
+//!   nearest active true source (source 0 in a single-source run).
 //! - Every statistic that is undefined (no rows, no truth, never in band) is
 //!   `null`, never NaN.
 
 use serde::Serialize;
 
 use super::derived::{Derived, ThetaSource};
+use super::multi::MultiTargetSummary;
 use super::record::RunRecord;
 use super::stats;
 
@@ -106,6 +111,10 @@ pub struct Summary {
     /// The same figures for the instantaneous triangulation beside a filtered
     /// estimate; `null` when no row has one.
     pub triangulation: Option<TriangulationSummary>,
+    /// Every true source against every published source id over time (OSPA,
+    /// detection, ghosts, id switches, per-source RSE; see [`super::multi`]);
+    /// `null` without truth.
+    pub multi_target: Option<MultiTargetSummary>,
 }
 
 /// RSE figures of the triangulation published beside a filtered estimate.
@@ -195,6 +204,7 @@ impl Summary {
             rse_median_after_convergence_m: stats::median(&after_rse),
             rse_p95_after_convergence_m: stats::p95(&after_rse),
             triangulation: TriangulationSummary::new(record, d),
+            multi_target: MultiTargetSummary::new(record),
         }
     }
 

@@ -27,7 +27,7 @@ fn percent(v: Option<f64>) -> String {
 type Line = (&'static str, fn(&Summary) -> String);
 
 /// The lines shown, in order.
-fn lines(with_triangulation: bool) -> Vec<Line> {
+fn lines(with_triangulation: bool, with_multi: bool) -> Vec<Line> {
     let mut lines: Vec<Line> = vec![
         ("active positioning", |s| if s.active_positioning { "on".into() } else { "off".into() }),
         ("seed", |s| s.seed.map_or_else(|| "—".into(), |v| v.to_string())),
@@ -56,6 +56,24 @@ fn lines(with_triangulation: bool) -> Vec<Line> {
         }));
         lines.push(("triangulation RSE p95", |s| metres(s.triangulation.as_ref().and_then(|t| t.rse_p95_m))));
     }
+    if with_multi {
+        lines.push(("sources: true / ids", |s| {
+            s.multi_target
+                .as_ref()
+                .map_or("—".into(), |m| format!("{} / {}", m.true_sources, m.published_ids))
+        }));
+        lines.push(("OSPA mean (c = 1 m)", |s| metres(s.multi_target.as_ref().and_then(|m| m.ospa_mean_m))));
+        lines.push(("OSPA p95", |s| metres(s.multi_target.as_ref().and_then(|m| m.ospa_p95_m))));
+        lines.push(("detection (≤ 0.5 m)", |s| {
+            percent(s.multi_target.as_ref().and_then(|m| m.detection_ratio))
+        }));
+        lines.push(("ghosts per s", |s| {
+            s.multi_target.as_ref().and_then(|m| m.ghosts_per_s).map_or("—".into(), |v| format!("{v:.3}"))
+        }));
+        lines.push(("id switches", |s| {
+            s.multi_target.as_ref().map_or("—".into(), |m| m.id_switches.to_string())
+        }));
+    }
     lines
 }
 
@@ -72,6 +90,7 @@ fn band_line(s: &Summary) -> String {
 /// Rows of a table with one value column per summary, titled by `headers`.
 fn table(summaries: &[&Summary], headers: &[&str]) -> String {
     let with_tri = summaries.iter().any(|s| s.triangulation.is_some());
+    let with_multi = summaries.iter().any(|s| s.multi_target.as_ref().is_some_and(|m| m.true_sources > 1));
     let mut out = String::new();
     let _ = write!(out, "{:<LABEL_WIDTH$}", "");
     for h in headers {
@@ -80,7 +99,7 @@ fn table(summaries: &[&Summary], headers: &[&str]) -> String {
     out.push('\n');
     let rule = LABEL_WIDTH + VALUE_WIDTH * headers.len();
     let _ = writeln!(out, "{}", "─".repeat(rule));
-    for (label, value) in lines(with_tri) {
+    for (label, value) in lines(with_tri, with_multi) {
         let _ = write!(out, "{label:<LABEL_WIDTH$}");
         for s in summaries {
             let _ = write!(out, "{:>VALUE_WIDTH$}", value(s));

@@ -21,11 +21,11 @@ use soundmap_proto::RepositionCommand;
 use soundmap_proto::Stamp;
 
 use crate::acoustics::{
-    Activity, RirConfig, Scene, ShoeboxRoom, SourceSignal, Waveform, direct_path_rms, noise_std_for_snr,
+    Activity, RirConfig, Scene, ShoeboxRoom, SourceSignal, direct_path_rms, noise_std_for_snr,
 };
 use crate::error::SimError;
-use crate::report::{RobotPath, RoomOutline, RunRecord};
-use crate::scenario::{Scenario, SignalSpec};
+use crate::report::{RobotPath, RoomOutline, RunRecord, SourceTruth};
+use crate::scenario::Scenario;
 use fleet::Fleet;
 use robot::SimRobot;
 use soundmap_agent::link::CoordinatorEvent;
@@ -44,7 +44,8 @@ pub struct RunOptions {
     pub seed: Option<u64>,
     /// Overrides whether active positioning is on.
     pub active_positioning: Option<bool>,
-    /// Writes the run as a recorded trial (WAV + TUM per robot, source TUM) into this directory.
+    /// Writes the run as a recorded trial (WAV + TUM per robot, a TUM per source:
+    /// `source.tum` for source 0, `source-K.tum` for source K ≥ 1) into this directory.
     pub record_dir: Option<PathBuf>,
     /// Shows a progress bar on the terminal.
     pub progress: bool,
@@ -61,14 +62,6 @@ pub fn run(scenario: &Scenario, options: &RunOptions) -> Result<RunRecord, SimEr
     runtime.block_on(run_async(scenario, options))
 }
 
-fn signal(spec: &SignalSpec) -> Waveform {
-    match *spec {
-        SignalSpec::WhiteNoise => Waveform::WhiteNoise,
-        SignalSpec::BandNoise { low_hz, high_hz } => Waveform::BandNoise { low_hz, high_hz },
-        SignalSpec::Tone { frequency_hz } => Waveform::Tone { frequency_hz, phase_rad: 0.0 },
-    }
-}
-
 /// The acoustic scene of a scenario.
 pub fn scene(s: &Scenario, seed: u64) -> Result<Scene, SimError> {
     let room = ShoeboxRoom::from_rt60(s.room.min_corner(), s.room.size(), s.room.rt60_s)?;
@@ -77,7 +70,7 @@ pub fn scene(s: &Scenario, seed: u64) -> Result<Scene, SimError> {
         .iter()
         .enumerate()
         .map(|(i, src)| SourceSignal {
-            waveform: signal(&src.signal),
+            waveform: src.signal.waveform(),
             rms: src.rms,
             activity: if src.active.is_empty() {
                 Activity::Always
@@ -149,7 +142,8 @@ struct Sim<'a> {
     recorders: Option<Vec<recording::RobotRecorder>>,
     rows: rows::RowMaker,
     paths: Vec<RobotPath>,
-    source_truth: Vec<(i64, Point3<f64>)>,
+    /// Per source, its true position at each hop (recordings only).
+    source_truth: Vec<Vec<(i64, Point3<f64>)>>,
     commands: Vec<(f64, String, String)>,
 }
 
@@ -192,7 +186,7 @@ impl<'a> Sim<'a> {
             recorders,
             rows,
             paths,
-            source_truth: Vec::new(),
+            source_truth: vec![Vec::new(); scenario.sources.len()],
             commands: Vec::new(),
         })
     }
@@ -230,8 +224,9 @@ impl<'a> Sim<'a> {
             }
             if self.options.record_dir.is_some() {
                 let t = self.stamp_of(sample);
-                let at = self.scenario.sources[0].position_at(t.seconds_since(SIM_EPOCH));
-                self.source_truth.push((t - SIM_EPOCH, at));
+                for (src, truth) in self.scenario.sources.iter().zip(self.source_truth.iter_mut()) {
+                    truth.push((t - SIM_EPOCH, src.position_at(t.seconds_since(SIM_EPOCH))));
+                }
             }
         }
         for (i, r) in self.robots.iter_mut().enumerate() {
@@ -288,7 +283,9 @@ impl<'a> Sim<'a> {
             for r in recs {
                 r.finish()?;
             }
-            recording::write_source_tum(&dir.join("source.tum"), &self.source_truth)?;
+            for (k, truth) in self.source_truth.iter().enumerate() {
+                recording::write_source_tum(&dir.join(recording::source_tum_name(k)), truth)?;
+            }
             write_replay_command(dir, scenario, &self.robots)?;
         }
         let duration_s = blocks as f64 * BLOCK_LEN as f64 / self.fs as f64;
@@ -301,10 +298,17 @@ impl<'a> Sim<'a> {
             rows: self.rows.finish(),
             robot_ids: self.robots.iter().map(|r| r.id.to_string()).collect(),
             robots: self.paths,
-            source_path: (0..=(duration_s * 10.0) as usize)
-                .map(|k| {
-                    let t = k as f64 / 10.0;
-                    (t, scenario.sources[0].position_at(t))
+            sources: scenario
+                .sources
+                .iter()
+                .map(|src| SourceTruth {
+                    path: (0..=(duration_s * 10.0) as usize)
+                        .map(|k| {
+                            let t = k as f64 / 10.0;
+                            (t, src.position_at(t))
+                        })
+                        .collect(),
+                    active: src.active_intervals(),
                 })
                 .collect(),
             room: Some(RoomOutline {
@@ -334,7 +338,15 @@ fn write_replay_command(
             yaw.to_degrees()
         ));
     }
-    cmd.push_str(&format!(" \\\n  --truth {}/source.tum --out OUT\n", dir.display()));
+    for (k, src) in scenario.sources.iter().enumerate() {
+        let intervals = crate::replay::format_intervals(&src.active_intervals());
+        cmd.push_str(&format!(
+            " \\\n  --truth {}/{}{intervals}",
+            dir.display(),
+            recording::source_tum_name(k)
+        ));
+    }
+    cmd.push_str(" \\\n  --out OUT\n");
     let path = dir.join("replay-command.txt");
     std::fs::write(&path, cmd).map_err(|e| SimError::file(path, e))
 }

@@ -1,7 +1,8 @@
 //! Writes a simulated run as a recorded trial: per robot a multichannel WAV
 //! (32-bit float) and a TUM file of the poses its agent saw at each DoA
-//! stamp, and a TUM file of the true source path — what `soundmap-sim replay`
-//! reads back.
+//! stamp, and a TUM file of each true source's path ([`source_tum_name`]) —
+//! what `soundmap-sim replay` reads back (`replay-command.txt` gives the call,
+//! with each source's on/off intervals).
 
 use std::fs::File;
 use std::io::{BufWriter, Write};
@@ -84,6 +85,12 @@ impl RobotRecorder {
         let mut tum = self.tum;
         tum.flush().map_err(|e| SimError::file(&self.tum_path, e))
     }
+}
+
+/// File name of source `k`'s true path in a recording: `source.tum` for
+/// source 0 (as single-source recordings always had), `source-K.tum` after it.
+pub fn source_tum_name(k: usize) -> String {
+    if k == 0 { "source.tum".into() } else { format!("source-{k}.tum") }
 }
 
 /// Writes the true source path as TUM (identity orientation).

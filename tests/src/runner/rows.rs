@@ -5,14 +5,34 @@ use soundmap_proto::{Stamp, wire};
 
 use super::SIM_EPOCH;
 use super::robot::SimRobot;
-use crate::report::TimelineRow;
+use crate::report::multi::nearest_truth;
+use crate::report::{SourceTruth, TimelineRow};
 use crate::scenario::Scenario;
 
 /// Builds [`TimelineRow`]s.
 #[derive(Debug)]
 pub struct RowMaker {
-    source: crate::scenario::SourceSpec,
+    truths: Vec<SourceTruth>,
     rows: Vec<TimelineRow>,
+}
+
+/// The exact truth of a scenario source: its path points and `active` intervals.
+pub fn source_truth(spec: &crate::scenario::SourceSpec) -> SourceTruth {
+    SourceTruth {
+        path: spec.path.iter().map(|p| (p.t_s, Point3::new(p.x_m, p.y_m, p.z_m))).collect(),
+        active: spec.active_intervals(),
+    }
+}
+
+/// The truth a row at `t_s` with estimate `estimate` is scored against: the
+/// nearest true source active at `t_s` ([`nearest_truth`]), with its position.
+pub fn truth_for(
+    truths: &[SourceTruth],
+    t_s: f64,
+    estimate: Option<Point3<f64>>,
+) -> Option<(usize, Point3<f64>)> {
+    let k = nearest_truth(truths, t_s, estimate)?;
+    Some((k, truths[k].position_at(t_s)?))
 }
 
 /// The name of a wire estimate method.
@@ -46,14 +66,17 @@ pub fn best_theta_deg(x: &Point3<f64>, points: &[Point3<f64>]) -> f64 {
     best.unwrap_or(0.0)
 }
 
-/// A published estimate as a timeline row, scored against `truth` and the
-/// true array centres (`arrays`, in robot order) at its stamp.
+/// A published estimate as a timeline row, scored against `truth` (the true
+/// source's index and position) and the true array centres (`arrays`, in robot
+/// order) at its stamp.
 pub fn row_of(
     e: &wire::SourceEstimate,
     t0: Stamp,
-    truth: Option<Point3<f64>>,
+    truth: Option<(usize, Point3<f64>)>,
     arrays: &[Point3<f64>],
 ) -> TimelineRow {
+    let truth_source = truth.map(|(k, _)| k);
+    let truth = truth.map(|(_, p)| p);
     let t_s = Stamp::from_ns(e.stamp_ns).seconds_since(t0);
     let triangulation = if e.filtered.is_some() {
         e.triangulation.as_ref().and_then(|t| point(&t.position_in_map_m))
@@ -73,20 +96,23 @@ pub fn row_of(
         robots: e.robots.clone(),
         truth_in_map: truth,
         covariance: e.covariance.as_ref().and_then(soundmap_proto::monitoring::covariance_from_wire),
+        source_id: e.source_id,
+        truth_source,
     }
 }
 
 impl RowMaker {
-    /// Rows for `scenario`, scored against its first source.
+    /// Rows for `scenario`, each scored against its nearest active source.
     pub fn new(scenario: &Scenario, _robots: &[SimRobot]) -> Self {
-        RowMaker { source: scenario.sources[0].clone(), rows: Vec::new() }
+        RowMaker { truths: scenario.sources.iter().map(source_truth).collect(), rows: Vec::new() }
     }
 
     /// Records an estimate.
     pub fn push(&mut self, e: &wire::SourceEstimate, robots: &[SimRobot]) {
         let t_s = Stamp::from_ns(e.stamp_ns).seconds_since(SIM_EPOCH);
         let arrays: Vec<Point3<f64>> = robots.iter().map(|r| r.array_centre_at(t_s)).collect();
-        self.rows.push(row_of(e, SIM_EPOCH, Some(self.source.position_at(t_s)), &arrays));
+        let truth = truth_for(&self.truths, t_s, point(&e.position_in_map_m));
+        self.rows.push(row_of(e, SIM_EPOCH, truth, &arrays));
     }
 
     /// The rows, in publication order.

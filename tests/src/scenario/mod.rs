@@ -14,6 +14,7 @@ use serde::Deserialize;
 use soundmap_agent::pipeline::PipelineConfig;
 use soundmap_server::CoordinatorConfig;
 
+use crate::acoustics::Waveform;
 use crate::error::SimError;
 
 /// A simulated trial.
@@ -208,11 +209,44 @@ pub enum SignalSpec {
         /// Upper edge (Hz).
         high_hz: f64,
     },
+    /// Speech-like: noise from `low_hz` to `high_hz` under a syllabic envelope at
+    /// `syllable_hz` (4–6 Hz for speech) with pauses; seeded per source
+    /// (`acoustics::signals` describes the envelope). `rms` is the level while voiced.
+    Talker {
+        /// Lower edge (Hz).
+        low_hz: f64,
+        /// Upper edge (Hz).
+        high_hz: f64,
+        /// Syllable rate (Hz).
+        #[serde(default = "default_syllable_hz")]
+        syllable_hz: f64,
+    },
+    /// A steady fan: a hum at `hum_hz` and its harmonics plus broadband noise.
+    Fan {
+        /// Fundamental of the hum (Hz).
+        #[serde(default = "default_hum_hz")]
+        hum_hz: f64,
+    },
     /// A pure tone (Hz).
     Tone {
         /// Frequency (Hz).
         frequency_hz: f64,
     },
+}
+
+impl SignalSpec {
+    /// The waveform the acoustics render.
+    pub fn waveform(&self) -> Waveform {
+        match *self {
+            SignalSpec::WhiteNoise => Waveform::WhiteNoise,
+            SignalSpec::BandNoise { low_hz, high_hz } => Waveform::BandNoise { low_hz, high_hz },
+            SignalSpec::Talker { low_hz, high_hz, syllable_hz } => {
+                Waveform::Talker { low_hz, high_hz, syllable_hz }
+            }
+            SignalSpec::Fan { hum_hz } => Waveform::Fan { hum_hz },
+            SignalSpec::Tone { frequency_hz } => Waveform::Tone { frequency_hz, phase_rad: 0.0 },
+        }
+    }
 }
 
 /// A sound source.
@@ -230,6 +264,14 @@ pub struct SourceSpec {
     /// Intervals [start_s, end_s] when the source plays; always when empty.
     #[serde(default)]
     pub active: Vec<[f64; 2]>,
+}
+
+fn default_syllable_hz() -> f64 {
+    5.0
+}
+
+fn default_hum_hz() -> f64 {
+    120.0
 }
 
 fn default_rms() -> f64 {
@@ -251,6 +293,11 @@ impl SourceSpec {
             }
         }
         at(&p[p.len() - 1])
+    }
+
+    /// The `active` intervals as `(start_s, end_s)` pairs (empty: always).
+    pub fn active_intervals(&self) -> Vec<(f64, f64)> {
+        self.active.iter().map(|[a, b]| (*a, *b)).collect()
     }
 
     /// Whether the source plays at `t_s`.

@@ -123,6 +123,16 @@ impl Scenario {
                     );
                 }
             }
+            let signal = crate::acoustics::SourceSignal {
+                waveform: src.signal.waveform(),
+                ..crate::acoustics::SourceSignal::white_noise(1.0, 0)
+            };
+            if let Err(SimError::InvalidConfig { field, reason }) =
+                signal.validate(f64::from(self.agent.sample_rate_hz))
+            {
+                let key = field.strip_prefix("signal.").unwrap_or(field);
+                return err(at(&format!("signal.{key}")), reason);
+            }
             if !finite_positive(src.rms) {
                 return err(at("rms"), format!("{} must be positive", src.rms));
             }

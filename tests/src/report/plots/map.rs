@@ -1,7 +1,9 @@
 //! `map`: top-down map of the run (map frame, equal aspect): the room's floor
-//! and obstacles, each robot's path (start ●, end ■, commanded goals ✕), the
-//! true source path, and the published estimates coloured by RSE as the paper's
-//! RViz display (green → black over 0–0.5 m, red above).
+//! and obstacles, each robot's path (start ●, end ■, commanded goals ✕), every
+//! true source's path labelled with its index (`S0`, `S1`, …), and the
+//! published estimates: coloured by RSE as the paper's RViz display (green →
+//! black over 0–0.5 m, red above) when the run has one true source and one
+//! published id, else coloured by their `source_id` (legend lists the ids).
 
 use plotters::coord::Shift;
 use plotters::prelude::*;
@@ -19,6 +21,36 @@ const NO_TRUTH: RGBColor = RGBColor(70, 70, 200);
 /// Floor fill and obstacle fill.
 const FLOOR: RGBColor = RGBColor(246, 244, 238);
 const OBSTACLE: RGBColor = RGBColor(175, 175, 175);
+/// Colours of estimates by source id (id 0, no live track, is grey).
+const ID_COLOURS: [RGBColor; 8] = [
+    RGBColor(230, 120, 0),
+    RGBColor(0, 150, 70),
+    RGBColor(0, 110, 220),
+    RGBColor(200, 30, 30),
+    RGBColor(130, 70, 190),
+    RGBColor(0, 170, 170),
+    RGBColor(160, 120, 40),
+    RGBColor(230, 80, 160),
+];
+
+/// Colour of estimates with `source_id` `id`.
+pub fn id_colour(id: u64) -> RGBColor {
+    if id == 0 { RGBColor(150, 150, 150) } else { ID_COLOURS[((id - 1) % ID_COLOURS.len() as u64) as usize] }
+}
+
+/// The published source ids of a record, sorted.
+fn published_ids(record: &RunRecord) -> Vec<u64> {
+    let mut ids: Vec<u64> = record.rows.iter().map(|r| r.source_id).collect();
+    ids.sort_unstable();
+    ids.dedup();
+    ids
+}
+
+/// Whether the map colours estimates by source id (several true sources or ids).
+pub fn colours_by_id(record: &RunRecord) -> bool {
+    record.sources.len() > 1 || published_ids(record).len() > 1
+}
+
 /// Pixel layout of the chart: margin, bottom and left label areas; legend panel width.
 const MARGIN: u32 = 15;
 const X_LABELS: u32 = 55;
@@ -45,7 +77,7 @@ pub fn extent(record: &RunRecord) -> (f64, f64, f64, f64) {
             pts.extend(robot.samples.iter().map(|s| [s.1, s.2]));
             pts.extend(robot.goals.iter().map(|g| [g.1, g.2]));
         }
-        pts.extend(record.source_path.iter().map(|(_, p)| [p.x, p.y]));
+        pts.extend(record.sources.iter().flat_map(|s| s.path.iter()).map(|(_, p)| [p.x, p.y]));
     }
     if pts.is_empty() {
         pts.extend(record.rows.iter().filter_map(|r| r.estimate_in_map).map(|p| [p.x, p.y]));
@@ -116,23 +148,25 @@ impl Figure for MapFigure<'_> {
         // Estimates under the truth and the robots, so those stay visible.
         let mut outside = 0usize;
         let mut without_truth = 0usize;
+        let by_id = colours_by_id(r);
         let estimates = r
             .rows
             .iter()
             .zip(&self.derived.rse_m)
-            .filter_map(|(row, rse)| Some((row.estimate_in_map?, *rse)));
-        let estimates: Vec<_> = estimates.filter(|(p, _)| p.x.is_finite() && p.y.is_finite()).collect();
+            .filter_map(|(row, rse)| Some((row.estimate_in_map?, *rse, row.source_id)));
+        let estimates: Vec<_> = estimates.filter(|(p, _, _)| p.x.is_finite() && p.y.is_finite()).collect();
         // Smaller dots when there are many, so the picture is not one blob.
         let radius = match estimates.len() {
             0..=500 => 4,
             501..=3000 => 3,
             _ => 2,
         };
-        chart.draw_series(estimates.iter().map(|(p, rse)| {
+        chart.draw_series(estimates.iter().map(|(p, rse, id)| {
             let (x, y) = (p.x.clamp(x0, x1), p.y.clamp(y0, y1));
             outside += usize::from(x != p.x || y != p.y);
-            without_truth += usize::from(rse.is_none());
-            Circle::new((x, y), radius, rse.map_or(NO_TRUTH, rse_colour).filled())
+            without_truth += usize::from(rse.is_none() && !by_id);
+            let colour = if by_id { id_colour(*id) } else { rse.map_or(NO_TRUTH, rse_colour) };
+            Circle::new((x, y), radius, colour.filled())
         }))?;
 
         for (k, robot) in r.robots.iter().enumerate() {
@@ -149,14 +183,21 @@ impl Figure for MapFigure<'_> {
                 .draw_series(robot.goals.iter().map(|g| Cross::new((g.1, g.2), 7, colour.stroke_width(3))))?;
         }
 
-        let source: Vec<(f64, f64)> = r.source_path.iter().map(|(_, p)| (p.x, p.y)).collect();
-        chart.draw_series(std::iter::once(PathElement::new(source.clone(), SOURCE.stroke_width(2))))?;
-        for p in [source.first(), source.last()].into_iter().flatten() {
-            // The true source's marker: a ring with a cross.
-            let marker = EmptyElement::at(*p)
-                + Circle::new((0, 0), 10, SOURCE.stroke_width(3))
-                + Cross::new((0, 0), 5, SOURCE.stroke_width(2));
-            chart.draw_series(std::iter::once(marker))?;
+        let index_style = label_style().color(&SOURCE).pos(Pos::new(HPos::Left, VPos::Bottom));
+        for (k, truth) in r.sources.iter().enumerate() {
+            let source: Vec<(f64, f64)> = truth.path.iter().map(|(_, p)| (p.x, p.y)).collect();
+            chart.draw_series(std::iter::once(PathElement::new(source.clone(), SOURCE.stroke_width(2))))?;
+            for p in [source.first(), source.last()].into_iter().flatten() {
+                // The true source's marker: a ring with a cross.
+                let marker = EmptyElement::at(*p)
+                    + Circle::new((0, 0), 10, SOURCE.stroke_width(3))
+                    + Cross::new((0, 0), 5, SOURCE.stroke_width(2));
+                chart.draw_series(std::iter::once(marker))?;
+            }
+            if let Some(p) = source.first().filter(|_| r.sources.len() > 1) {
+                let label = EmptyElement::at(*p) + Text::new(format!("S{k}"), (12, -10), index_style.clone());
+                chart.draw_series(std::iter::once(label))?;
+            }
         }
 
         legend(&panel, r, outside, without_truth)
@@ -209,11 +250,30 @@ fn legend<DB: DrawingBackend>(
         panel.draw(&Cross::new((x + 14, y), 7, BLACK.stroke_width(3)))?;
         row(&mut y, "commanded goal")?;
     }
-    if !r.source_path.is_empty() {
+    if !r.sources.is_empty() {
         panel.draw(&(EmptyElement::at((x + 14, y)) + Circle::new((0, 0), 10, SOURCE.stroke_width(3))))?;
-        row(&mut y, "true source (start, end)")?;
+        let what =
+            if r.sources.len() > 1 { "true sources Sk (start, end)" } else { "true source (start, end)" };
+        row(&mut y, what)?;
     }
     y += 10;
+    if colours_by_id(r) {
+        panel.draw_text("estimates, coloured by source id:", &text, (x, y))?;
+        y += 30;
+        let ids = published_ids(r);
+        for id in ids.iter().take(12) {
+            panel.draw(&Circle::new((x + 14, y), 6, id_colour(*id).filled()))?;
+            row(&mut y, &if *id == 0 { "id 0 (no live track)".to_string() } else { format!("id {id}") })?;
+        }
+        if ids.len() > 12 {
+            row(&mut y, &format!("… {} ids in all", ids.len()))?;
+        }
+        if outside > 0 {
+            row(&mut y, &format!("{outside} estimates outside the map"))?;
+            row(&mut y, "are drawn at its edge")?;
+        }
+        return Ok(());
+    }
     panel.draw_text("estimates, coloured by RSE (m):", &text, (x, y))?;
     y += 30;
     // Colour bar: 0–0.5 m green → black, then a red block for above 0.5 m.
