@@ -84,7 +84,11 @@ impl LivePlan {
         })?;
         let robot_id = config.robot_id.clone();
         let version = format!("soundmap-agent {}", env!("CARGO_PKG_VERSION"));
-        let hello = agent::hello(robot_id, &array, version);
+        let mut hello = agent::hello(robot_id, &array, version);
+        if let DoaSource::Own { pipeline, .. } = &config.doa {
+            // The robot declares how many tracks it sends and its signature bands.
+            hello = pipeline.declare_tracks(hello).map_err(|e| named(&cfg_name, "pipeline", e))?;
+        }
         let audio_start = Stamp::now();
         let (hops, sigma_floor_deg) = plan_hops(&config, &array, audio_start, &cfg_name)?;
         let mut core_config = CoreConfig {

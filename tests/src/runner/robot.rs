@@ -209,8 +209,8 @@ impl SimRobot {
         let (pos_std, yaw_std) = slam_pose_std(slam);
         let channels = array.channels();
         let id = RobotId::parse(&spec.id, "robots.id")?;
-        let hello =
-            agent::hello(id.clone(), &array, concat!("soundmap-sim ", env!("CARGO_PKG_VERSION")).into());
+        let version = concat!("soundmap-sim ", env!("CARGO_PKG_VERSION")).into();
+        let hello = pipeline_config.declare_tracks(agent::hello(id.clone(), &array, version))?;
         let core_config = CoreConfig {
             doa_sigma_floor_rad: pipeline.doa_sigma_floor_rad(),
             pose_buffer: PoseBufferConfig { capacity: 4096, ..PoseBufferConfig::default() },
