@@ -283,11 +283,9 @@ impl Replayed {
             doa_sigma_floor_rad: pipeline.doa_sigma_floor_rad(),
             ..CoreConfig::default()
         };
-        let mut core = Agent::new(
-            agent::hello(id.clone(), &array, version.into()),
-            core_config,
-            &r.poses.display().to_string(),
-        )?;
+        // The hello declares the tracks and signature bands the pipeline reports, as live.
+        let hello = pipeline_config.declare_tracks(agent::hello(id.clone(), &array, version.into()))?;
+        let mut core = Agent::new(hello, core_config, &r.poses.display().to_string())?;
         let trajectory = list.into_iter().map(|p| StampedPose { covariance, ..p }).collect();
         core.handle_trajectory(start, trajectory)?;
         let robot = Replayed {
