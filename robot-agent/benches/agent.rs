@@ -223,7 +223,7 @@ fn signature_stage(array: &ArrayGeometry, config: &PipelineConfig, tracks: usize
     }
     let mut best = f64::INFINITY;
     for _ in 0..RUNS {
-        let mut sig = Signatures::new(array, config).unwrap();
+        let mut sig = Signatures::new(array, &config.signature, &config.signature_layout()).unwrap();
         let t0 = thread_cpu_ns();
         for _ in 0..STAGE_REPEATS {
             for spectra in &frames {

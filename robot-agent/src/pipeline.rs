@@ -15,7 +15,7 @@ use soundmap_proto::Stamp;
 use crate::array::ArrayGeometry;
 use crate::doa_tracker::DoaTracker;
 use crate::error::AgentError;
-use crate::signature::Signatures;
+use crate::signature::{SignatureLayout, Signatures};
 use crate::srp::Srp;
 use crate::stft::{Stft, Window};
 
@@ -73,6 +73,18 @@ impl Default for PipelineConfig {
 }
 
 impl PipelineConfig {
+    /// What the signatures need of this pipeline (frames, window, speed of sound).
+    pub fn signature_layout(&self) -> SignatureLayout {
+        SignatureLayout {
+            sample_rate_hz: self.sample_rate_hz,
+            frame_len: self.frame_len,
+            hop_len: self.hop_len,
+            max_tracks: self.max_reported_tracks,
+            window_energy: self.window.coefficients(self.frame_len).iter().map(|&w| (w as f64).powi(2)).sum(),
+            speed_of_sound_m_per_s: self.srp.speed_of_sound_m_per_s,
+        }
+    }
+
     /// `hello` declaring what this pipeline sends: at most
     /// [`PipelineConfig::max_reported_tracks`] tracks per observation and
     /// signatures in the bands of [`SignatureConfig::band_edges_hz`] (none when
@@ -172,7 +184,7 @@ impl Pipeline {
         let srp = Srp::new(array, fs, config.frame_len, &config.srp)?;
         let hop_s = config.hop_len as f64 / fs as f64;
         let tracker = DoaTracker::new(&config.tracker, hop_s, config.srp.max_sources, srp.noise_model())?;
-        let signatures = Signatures::new(array, config)?;
+        let signatures = Signatures::new(array, &config.signature, &config.signature_layout())?;
         let (k, bands) = (signatures.max_tracks(), signatures.bands());
         let offset_samples = config.hop_len as f64 - config.frame_len as f64 / 2.0;
         Ok(Pipeline {

@@ -41,7 +41,6 @@ use realfft::num_complex::Complex;
 use crate::array::ArrayGeometry;
 use crate::doa_tracker::{MAX_TRACKS, TrackedDirection};
 use crate::error::AgentError;
-use crate::pipeline::PipelineConfig;
 
 /// Most signature bands (the contract's limit).
 pub const MAX_BANDS: usize = soundmap_proto::messages::MAX_SIGNATURE_BANDS;
@@ -168,15 +167,34 @@ pub struct Signatures {
     yi: Vec<[f32; LANES]>,
 }
 
+/// What signatures need to know of the pipeline they run in.
+#[derive(Clone, Debug, PartialEq)]
+pub struct SignatureLayout {
+    /// Sample rate, Hz.
+    pub sample_rate_hz: u32,
+    /// STFT frame length, samples.
+    pub frame_len: usize,
+    /// Hop, samples.
+    pub hop_len: usize,
+    /// Most tracks reported per hop (1..=64).
+    pub max_tracks: usize,
+    /// Σ w² of the analysis window over one frame.
+    pub window_energy: f64,
+    /// Speed of sound, m/s.
+    pub speed_of_sound_m_per_s: f64,
+}
+
 impl Signatures {
-    /// Plans signatures of at most `pipeline.max_reported_tracks` (1..=64)
-    /// tracks for `array`, with the pipeline's frames, window, hop and speed
-    /// of sound, and its `signature` settings.
-    pub fn new(array: &ArrayGeometry, pipeline: &PipelineConfig) -> Result<Self, AgentError> {
-        let config = &pipeline.signature;
-        let sample_rate_hz = pipeline.sample_rate_hz;
-        let (frame_len, max_tracks) = (pipeline.frame_len, pipeline.max_reported_tracks);
-        let hop_s = pipeline.hop_len as f64 / sample_rate_hz as f64;
+    /// Plans signatures of at most `layout.max_tracks` (1..=64) tracks for
+    /// `array` with the `config` settings, in a pipeline of that layout.
+    pub fn new(
+        array: &ArrayGeometry,
+        config: &SignatureConfig,
+        layout: &SignatureLayout,
+    ) -> Result<Self, AgentError> {
+        let sample_rate_hz = layout.sample_rate_hz;
+        let (frame_len, max_tracks) = (layout.frame_len, layout.max_tracks);
+        let hop_s = layout.hop_len as f64 / sample_rate_hz as f64;
         let edges_hz = config.band_edges_hz(sample_rate_hz)?;
         if max_tracks == 0 || max_tracks > MAX_TRACKS {
             return Err(AgentError::InvalidParameter {
@@ -209,14 +227,14 @@ impl Signatures {
         let span = end - first_bin;
         let padded = span.div_ceil(LANES) * LANES;
         let m = array.channels();
-        let window_energy: f64 = pipeline.window.coefficients(n).iter().map(|&w| (w as f64).powi(2)).sum();
+        let window_energy = layout.window_energy;
         Ok(Signatures {
             bins,
             first_bin,
             span,
             padded,
             band_bins: ranges.iter().map(|&(s, c)| (s - first_bin, c)).collect(),
-            delays: array.positions().map(|p| p.coords / pipeline.srp.speed_of_sound_m_per_s).collect(),
+            delays: array.positions().map(|p| p.coords / layout.speed_of_sound_m_per_s).collect(),
             domega: 2.0 * std::f64::consts::PI * fs / n as f64,
             norm: (1.0 / ((m * m) as f64 * window_energy.max(f64::MIN_POSITIVE))) as f32,
             alpha: (1.0 - (-hop_s * config.update_interval_hops as f64 / config.time_constant_s).exp())
@@ -396,8 +414,8 @@ mod tests {
     use rand::{RngExt, SeedableRng};
 
     fn signatures(array: &ArrayGeometry, config: &SignatureConfig) -> Signatures {
-        let pipeline = PipelineConfig { signature: config.clone(), ..Default::default() };
-        Signatures::new(array, &pipeline).unwrap()
+        let pipeline = crate::pipeline::PipelineConfig::default();
+        Signatures::new(array, config, &pipeline.signature_layout()).unwrap()
     }
 
     #[test]
