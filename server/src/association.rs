@@ -48,9 +48,13 @@
 //! before a source is born (the sound map's rule), and a ghost that is born
 //! anyway moves when the robots move, leaves its rays' gates and dies.
 
+use crate::planner::assignment::assign_rect;
+
 /// Minimum-cost assignment of rows to columns for a rectangular cost matrix
 /// (`cost[i][j]`, `f64::INFINITY` = forbidden), every row free to stay
 /// unassigned at `unassigned_cost`. Returns, per row, its column or `None`.
+/// Solved by the planner's Hungarian method ([`assign_rect`]) with one
+/// "unassigned" column per row.
 pub fn assign(cost: &[Vec<f64>], unassigned_cost: f64) -> Vec<Option<usize>> {
     let n = cost.len();
     if n == 0 {
@@ -58,74 +62,20 @@ pub fn assign(cost: &[Vec<f64>], unassigned_cost: f64) -> Vec<Option<usize>> {
     }
     let m = cost[0].len();
     // Columns: the m real ones, then one "unassigned" column per row.
-    let cols = m + n;
     let big = 1e12;
-    let c = |i: usize, j: usize| -> f64 {
-        if j < m {
-            let v = cost[i][j];
-            if v.is_finite() { v } else { big }
-        } else if j - m == i {
-            unassigned_cost
-        } else {
-            big
-        }
-    };
-    // Hungarian method (potentials), rows 1..=n, columns 1..=cols.
-    let (mut u, mut v) = (vec![0.0; n + 1], vec![0.0; cols + 1]);
-    let mut p = vec![0usize; cols + 1];
-    let mut way = vec![0usize; cols + 1];
-    for i in 1..=n {
-        p[0] = i;
-        let mut j0 = 0;
-        let mut minv = vec![f64::INFINITY; cols + 1];
-        let mut used = vec![false; cols + 1];
-        loop {
-            used[j0] = true;
-            let i0 = p[j0];
-            let mut delta = f64::INFINITY;
-            let mut j1 = 0;
-            for j in 1..=cols {
-                if !used[j] {
-                    let cur = c(i0 - 1, j - 1) - u[i0] - v[j];
-                    if cur < minv[j] {
-                        minv[j] = cur;
-                        way[j] = j0;
-                    }
-                    if minv[j] < delta {
-                        delta = minv[j];
-                        j1 = j;
-                    }
-                }
-            }
-            for j in 0..=cols {
-                if used[j] {
-                    u[p[j]] += delta;
-                    v[j] -= delta;
-                } else {
-                    minv[j] -= delta;
-                }
-            }
-            j0 = j1;
-            if p[j0] == 0 {
-                break;
-            }
-        }
-        loop {
-            let j1 = way[j0];
-            p[j0] = p[j1];
-            j0 = j1;
-            if j0 == 0 {
-                break;
-            }
-        }
-    }
-    let mut out = vec![None; n];
-    for j in 1..=cols {
-        if p[j] != 0 && j <= m && cost[p[j] - 1][j - 1].is_finite() {
-            out[p[j] - 1] = Some(j - 1);
-        }
-    }
-    out
+    let padded: Vec<Vec<f64>> = cost
+        .iter()
+        .enumerate()
+        .map(|(i, row)| {
+            let real = row.iter().map(|&v| if v.is_finite() { v } else { big });
+            real.chain((0..n).map(|k| if k == i { unassigned_cost } else { big })).collect()
+        })
+        .collect();
+    assign_rect(&padded)
+        .into_iter()
+        .enumerate()
+        .map(|(i, j)| j.filter(|&j| j < m && cost[i][j].is_finite()))
+        .collect()
 }
 
 /// The subset of candidates, no two sharing an element, with the largest total

@@ -1,5 +1,7 @@
-//! Minimum-cost assignment of robots to target slots (Hungarian method,
-//! O(n³) with row/column potentials).
+//! Minimum-cost assignment (Hungarian method, O(n³) with row/column
+//! potentials): robots to target slots ([`assign`]), and the rectangular form
+//! ([`assign_rect`]) the association of rays to sources and the simulator's
+//! multi-target scoring use.
 
 /// `cost[i * n + j]`: cost of giving robot `i` slot `j`. Returns `slot[i]`
 /// minimising Σ cost, and that sum. `n = 0` gives an empty assignment.
@@ -66,6 +68,25 @@ pub fn assign(cost: &[f64], n: usize) -> (Vec<usize>, f64) {
     }
     let total = (0..n).map(|i| cost[i * n + slot[i]]).sum();
     (slot, total)
+}
+
+/// Rectangular minimum-cost assignment: `result[i]` is the column given to
+/// row `i`, `None` for the rows left over when there are more rows than
+/// columns. Padded to a square with zero-cost dummy rows or columns and solved
+/// by [`assign`]. Costs should be finite (use a large value for forbidden pairs).
+pub fn assign_rect(cost: &[Vec<f64>]) -> Vec<Option<usize>> {
+    let rows = cost.len();
+    let cols = cost.first().map_or(0, Vec::len);
+    if rows == 0 || cols == 0 {
+        return vec![None; rows];
+    }
+    let n = rows.max(cols);
+    let mut square = vec![0.0; n * n];
+    for (i, row) in cost.iter().enumerate() {
+        square[i * n..i * n + cols].copy_from_slice(row);
+    }
+    let (slot, _) = assign(&square, n);
+    slot.into_iter().take(rows).map(|j| (j < cols).then_some(j)).collect()
 }
 
 #[cfg(test)]

@@ -116,78 +116,10 @@ pub struct SourceFigures {
 
 /// Optimal assignment minimizing the summed cost: `result[i]` is the column
 /// given to row `i` (`None` for rows left over when there are more rows than
-/// columns). Hungarian method (Kuhn–Munkres with potentials), O(n²m).
+/// columns). The coordinator's Hungarian method
+/// ([`soundmap_server::planner::assignment::assign_rect`]).
 pub fn assignment(cost: &[Vec<f64>]) -> Vec<Option<usize>> {
-    let rows = cost.len();
-    let cols = cost.first().map_or(0, Vec::len);
-    if rows == 0 || cols == 0 {
-        return vec![None; rows];
-    }
-    if rows > cols {
-        let transposed: Vec<Vec<f64>> = (0..cols).map(|j| (0..rows).map(|i| cost[i][j]).collect()).collect();
-        let mut out = vec![None; rows];
-        for (j, i) in assignment(&transposed).into_iter().enumerate() {
-            if let Some(i) = i {
-                out[i] = Some(j);
-            }
-        }
-        return out;
-    }
-    // rows ≤ cols; 1-based arrays as in the classic formulation.
-    let (n, m) = (rows, cols);
-    let (mut u, mut v) = (vec![0.0; n + 1], vec![0.0; m + 1]);
-    let (mut p, mut way) = (vec![0usize; m + 1], vec![0usize; m + 1]);
-    for i in 1..=n {
-        p[0] = i;
-        let mut j0 = 0usize;
-        let mut minv = vec![f64::INFINITY; m + 1];
-        let mut used = vec![false; m + 1];
-        loop {
-            used[j0] = true;
-            let i0 = p[j0];
-            let (mut delta, mut j1) = (f64::INFINITY, 0usize);
-            for j in 1..=m {
-                if !used[j] {
-                    let cur = cost[i0 - 1][j - 1] - u[i0] - v[j];
-                    if cur < minv[j] {
-                        minv[j] = cur;
-                        way[j] = j0;
-                    }
-                    if minv[j] < delta {
-                        delta = minv[j];
-                        j1 = j;
-                    }
-                }
-            }
-            for j in 0..=m {
-                if used[j] {
-                    u[p[j]] += delta;
-                    v[j] -= delta;
-                } else {
-                    minv[j] -= delta;
-                }
-            }
-            j0 = j1;
-            if p[j0] == 0 {
-                break;
-            }
-        }
-        loop {
-            let j1 = way[j0];
-            p[j0] = p[j1];
-            j0 = j1;
-            if j0 == 0 {
-                break;
-            }
-        }
-    }
-    let mut out = vec![None; n];
-    for j in 1..=m {
-        if p[j] != 0 {
-            out[p[j] - 1] = Some(j - 1);
-        }
-    }
-    out
+    soundmap_server::planner::assignment::assign_rect(cost)
 }
 
 /// OSPA distance between `truths` and `estimates` with cut-off `c` (m) and order `p`.
