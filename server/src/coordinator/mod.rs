@@ -15,6 +15,7 @@
 //!   planner's [`cadence`](crate::planner::cadence) says one is due.
 
 pub mod commands;
+mod doa_queue;
 pub mod estimate;
 pub mod positioning;
 mod reposition;

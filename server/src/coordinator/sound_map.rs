@@ -23,12 +23,12 @@
 //!    aligned observation holds a track labelled with it are triangulated, and
 //!    the source's filtered state is published beside that triangulation.
 
-use std::cmp::Reverse;
-use std::collections::{BinaryHeap, HashMap};
+use std::collections::HashMap;
 
 use nalgebra::Point3;
 use soundmap_proto::Stamp;
 
+use super::doa_queue::{DoaQueue, Queued};
 use crate::association::{assign, best_disjoint, signature_similarity};
 use crate::config::SourcesConfig;
 use crate::ray::Ray;
@@ -80,32 +80,6 @@ struct Label {
     last: Stamp,
 }
 
-/// An observation waiting to be applied.
-#[derive(Debug)]
-struct Queued {
-    stamp: Stamp,
-    arrival: u64,
-    robot: u32,
-    rays: Vec<TaggedRay>,
-}
-
-impl PartialEq for Queued {
-    fn eq(&self, o: &Self) -> bool {
-        (self.stamp, self.arrival) == (o.stamp, o.arrival)
-    }
-}
-impl Eq for Queued {}
-impl PartialOrd for Queued {
-    fn partial_cmp(&self, o: &Self) -> Option<std::cmp::Ordering> {
-        Some(self.cmp(o))
-    }
-}
-impl Ord for Queued {
-    fn cmp(&self, o: &Self) -> std::cmp::Ordering {
-        (self.stamp, self.arrival).cmp(&(o.stamp, o.arrival))
-    }
-}
-
 /// An unclaimed ray, as births see it.
 #[derive(Clone, Debug)]
 struct Free {
@@ -151,14 +125,8 @@ pub struct SoundMap {
     labels: HashMap<(u32, u64), Label>,
     /// Birth candidates by their (robot, track) keys: consecutive rounds seen.
     candidates: HashMap<Vec<(u32, u64)>, u32>,
-    queue: BinaryHeap<Reverse<Queued>>,
-    arrivals: u64,
-    latest: Vec<Option<Stamp>>,
-    newest: Option<Stamp>,
-    /// Stamp of the last observation queued per robot (rate limit).
-    last_queued: Vec<Option<Stamp>>,
-    /// Shortest interval between two observations of a robot given to the trackers (ns).
-    min_interval_ns: i64,
+    /// Observations not yet applied, at most `tracking.max_doa_rate_hz` per robot.
+    queue: DoaQueue<Vec<TaggedRay>>,
     next_id: u64,
     /// Sources born since start.
     pub births: u64,
@@ -168,7 +136,7 @@ impl SoundMap {
     /// An empty map.
     pub fn new(config: SourcesConfig, tracker: TrackerConfig) -> Self {
         let gate = chi2_quantile(2, tracker.association_probability);
-        let rate = tracker.max_doa_rate_hz;
+        let queue = DoaQueue::new(tracker.max_doa_rate_hz);
         SoundMap {
             config,
             tracker,
@@ -177,12 +145,7 @@ impl SoundMap {
             remembered: Vec::new(),
             labels: HashMap::new(),
             candidates: HashMap::new(),
-            queue: BinaryHeap::new(),
-            arrivals: 0,
-            latest: Vec::new(),
-            newest: None,
-            last_queued: Vec::new(),
-            min_interval_ns: if rate > 0.0 { (1e9 / rate) as i64 } else { 0 },
+            queue,
             next_id: 1,
             births: 0,
         }
@@ -194,28 +157,15 @@ impl SoundMap {
     /// successive DoAs alike, and applied as independent they would make the
     /// filters overconfident.
     pub fn push(&mut self, stamp: Stamp, robot: u32, rays: Vec<TaggedRay>) {
-        let i = robot as usize;
-        if self.latest.len() <= i {
-            self.latest.resize(i + 1, None);
-            self.last_queued.resize(i + 1, None);
-        }
-        self.latest[i] = Some(self.latest[i].map_or(stamp, |l| l.max(stamp)));
-        self.newest = Some(self.newest.map_or(stamp, |n| n.max(stamp)));
-        if self.last_queued[i].is_some_and(|last| stamp - last < self.min_interval_ns && stamp >= last) {
-            return;
-        }
+        self.queue.note_stamp(robot, stamp);
         if !rays.is_empty() {
-            self.last_queued[i] = Some(stamp);
-            self.arrivals += 1;
-            self.queue.push(Reverse(Queued { stamp, arrival: self.arrivals, robot, rays }));
+            self.queue.push(stamp, robot, rays);
         }
     }
 
     /// Robot `robot` is gone: the watermark no longer waits for it.
     pub fn forget_robot(&mut self, robot: u32) {
-        if let Some(l) = self.latest.get_mut(robot as usize) {
-            *l = None;
-        }
+        self.queue.forget_robot(robot);
     }
 
     /// Deaths, births from `aligned` (each live robot's observation nearest the
@@ -229,9 +179,8 @@ impl SoundMap {
 
     /// Applies queued observations up to the watermark.
     pub fn flush(&mut self, now: Stamp) {
-        let Some(watermark) = super::tracking::watermark(&self.latest, self.newest, now) else { return };
-        while self.queue.peek().is_some_and(|q| q.0.stamp <= watermark) {
-            let Some(Reverse(q)) = self.queue.pop() else { break };
+        let Some(watermark) = self.queue.watermark(now) else { return };
+        while let Some(q) = self.queue.pop_until(watermark) {
             self.apply(q);
         }
     }
@@ -261,13 +210,13 @@ impl SoundMap {
     }
 
     /// One observation's rays assigned to the live sources (GNN with the label prior).
-    fn apply(&mut self, q: Queued) {
+    fn apply(&mut self, q: Queued<Vec<TaggedRay>>) {
         if self.sources.is_empty() {
             return;
         }
         let half = self.gate * 0.5;
         let cost: Vec<Vec<f64>> = q
-            .rays
+            .item
             .iter()
             .map(|t| {
                 let (ray, track) = (&t.ray, &t.track_id);
@@ -287,7 +236,7 @@ impl SoundMap {
             .collect();
         for (k, j) in assign(&cost, self.gate).into_iter().enumerate() {
             let Some(j) = j else { continue };
-            let (ray, track) = (q.rays[k].ray, q.rays[k].track_id);
+            let (ray, track) = (q.item[k].ray, q.item[k].track_id);
             let s = &mut self.sources[j];
             if matches!(s.tracker.update(q.stamp, q.robot, &ray), UpdateOutcome::Applied { .. }) {
                 s.last_heard = s.last_heard.max(q.stamp);

@@ -16,9 +16,6 @@
 //! Queuing also lets DoAs that arrive in the batch that starts a track, but
 //! are stamped after its start, update it.
 
-use std::cmp::{Ordering, Reverse};
-use std::collections::BinaryHeap;
-
 use soundmap_proto::Stamp;
 
 use crate::ray::Ray;
@@ -40,66 +37,16 @@ pub struct TrackingCounters {
     pub skipped: u64,
 }
 
-/// A queued DoA, ordered by stamp then arrival.
-#[derive(Debug)]
-struct Queued {
-    stamp: Stamp,
-    arrival: u64,
-    robot: u32,
-    ray: Ray,
-}
-
-impl PartialEq for Queued {
-    fn eq(&self, other: &Self) -> bool {
-        self.cmp(other) == Ordering::Equal
-    }
-}
-
-impl Eq for Queued {}
-
-impl PartialOrd for Queued {
-    fn partial_cmp(&self, other: &Self) -> Option<Ordering> {
-        Some(self.cmp(other))
-    }
-}
-
-impl Ord for Queued {
-    fn cmp(&self, other: &Self) -> Ordering {
-        (self.stamp, self.arrival).cmp(&(other.stamp, other.arrival))
-    }
-}
-
-/// Longest a queued DoA waits for slower robots before it is applied (ms):
-/// the filtered state is at most this much behind the newest DoA.
-pub const MAX_HOLD_MS: i64 = 100;
-
-/// Stamp up to which queued DoAs can be applied at `now`: the oldest of the
-/// robots' latest stamps (`latest`), held at most [`MAX_HOLD_MS`] behind the
-/// newest stamp and behind `now` (see the module docs).
-pub(crate) fn watermark(latest: &[Option<Stamp>], newest: Option<Stamp>, now: Stamp) -> Option<Stamp> {
-    let newest = newest?;
-    let hold_ns = MAX_HOLD_MS * 1_000_000;
-    let slowest = latest.iter().flatten().min().copied().unwrap_or(newest);
-    Some(slowest.max(newest.plus_ns(-hold_ns)).max(newest.min(now.plus_ns(-hold_ns))))
-}
+use super::doa_queue::DoaQueue;
+pub use super::doa_queue::MAX_HOLD_MS;
 
 /// The coordinator's tracker and its queue of DoAs.
 #[derive(Debug)]
 pub struct Tracking {
     /// `None` when `[tracking] enabled = false`.
     tracker: Option<SourceTracker>,
-    /// DoAs not yet applied, oldest on top.
-    queue: BinaryHeap<Reverse<Queued>>,
-    /// Arrival counter (equal stamps are applied in arrival order).
-    arrivals: u64,
-    /// Latest observation stamp per robot index.
-    latest: Vec<Option<Stamp>>,
-    /// Newest observation stamp of any robot.
-    newest: Option<Stamp>,
-    /// Stamp of the last DoA queued per robot index (rate limit).
-    last_queued: Vec<Option<Stamp>>,
-    /// Shortest interval between two DoAs of a robot given to the tracker (ns).
-    min_interval_ns: i64,
+    /// DoAs not yet applied, at most `max_doa_rate_hz` per robot.
+    queue: DoaQueue<Ray>,
     counters: TrackingCounters,
 }
 
@@ -108,16 +55,7 @@ impl Tracking {
     pub fn new(config: &TrackerConfig) -> Self {
         Tracking {
             tracker: config.enabled.then(|| SourceTracker::new(config.clone())),
-            queue: BinaryHeap::new(),
-            arrivals: 0,
-            latest: Vec::new(),
-            newest: None,
-            last_queued: Vec::new(),
-            min_interval_ns: if config.max_doa_rate_hz > 0.0 {
-                (1e9 / config.max_doa_rate_hz) as i64
-            } else {
-                0
-            },
+            queue: DoaQueue::new(config.max_doa_rate_hz),
             counters: TrackingCounters::default(),
         }
     }
@@ -135,46 +73,23 @@ impl Tracking {
     /// Robot `robot` sent an observation stamped `stamp` (with or without DoAs):
     /// it will send nothing older.
     pub fn note_stamp(&mut self, robot: u32, stamp: Stamp) {
-        if self.tracker.is_none() {
-            return;
+        if self.tracker.is_some() {
+            self.queue.note_stamp(robot, stamp);
         }
-        let i = robot as usize;
-        if self.latest.len() <= i {
-            self.latest.resize(i + 1, None);
-        }
-        self.latest[i] = Some(self.latest[i].map_or(stamp, |l| l.max(stamp)));
-        self.newest = Some(self.newest.map_or(stamp, |n| n.max(stamp)));
     }
 
     /// Robot `robot` is gone (stream closed): the watermark no longer waits for it.
     pub fn forget_robot(&mut self, robot: u32) {
-        if let Some(l) = self.latest.get_mut(robot as usize) {
-            *l = None;
-        }
+        self.queue.forget_robot(robot);
     }
 
     /// Queues the dominant DoA ray (map frame) of robot `robot` stamped `stamp`,
     /// unless that robot's previous one was queued less than
     /// 1/`max_doa_rate_hz` earlier (see [`TrackerConfig::max_doa_rate_hz`]).
     pub fn push(&mut self, stamp: Stamp, robot: u32, ray: Ray) {
-        if self.tracker.is_some() {
-            let i = robot as usize;
-            if self.last_queued.len() <= i {
-                self.last_queued.resize(i + 1, None);
-            }
-            if self.last_queued[i].is_some_and(|last| stamp - last < self.min_interval_ns && stamp >= last) {
-                self.counters.skipped += 1;
-                return;
-            }
-            self.last_queued[i] = Some(stamp);
-            self.arrivals += 1;
-            self.queue.push(Reverse(Queued { stamp, arrival: self.arrivals, robot, ray }));
+        if self.tracker.is_some() && !self.queue.push(stamp, robot, ray) {
+            self.counters.skipped += 1;
         }
-    }
-
-    /// Stamp up to which queued DoAs can be applied at `now` (see the module docs).
-    fn watermark(&self, now: Stamp) -> Option<Stamp> {
-        watermark(&self.latest, self.newest, now)
     }
 
     /// Starts a track from `triangulation` (whose newest ray is stamped `stamp`)
@@ -191,11 +106,10 @@ impl Tracking {
 
     /// Applies the queued DoAs up to the watermark at `now`, in stamp order.
     pub fn flush(&mut self, now: Stamp) {
-        let Some(watermark) = self.watermark(now) else { return };
+        let Some(watermark) = self.queue.watermark(now) else { return };
         let Some(tracker) = self.tracker.as_mut() else { return };
-        while self.queue.peek().is_some_and(|q| q.0.stamp <= watermark) {
-            let Some(Reverse(q)) = self.queue.pop() else { break };
-            match tracker.update(q.stamp, q.robot, &q.ray) {
+        while let Some(q) = self.queue.pop_until(watermark) {
+            match tracker.update(q.stamp, q.robot, &q.item) {
                 UpdateOutcome::Applied { .. } => self.counters.applied += 1,
                 UpdateOutcome::Gated { .. } => self.counters.gated += 1,
                 _ => self.counters.unused += 1,
