@@ -22,7 +22,7 @@
 //! the nearest source playing at its stamp ([`crate::report::multi`]).
 
 use std::collections::BTreeMap;
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 
 use nalgebra::Point3;
 use soundmap_agent::agent::{self, Agent, CoreConfig};
@@ -39,9 +39,10 @@ use crate::error::SimError;
 use crate::report::multi::nearest_truth_among;
 use crate::report::{RobotPath, RunRecord, SourceTruth, TimelineRow};
 use crate::runner::fleet::Fleet;
-use crate::runner::robot::pose_covariance;
+use crate::runner::robot::{pose_covariance, slam_pose_std};
 use crate::runner::rows::{point, row_of};
 use crate::runner::{BLOCK_LEN, SIM_EPOCH, exchange};
+use crate::scenario::Scenario;
 
 /// One robot's recording, as given on the command line:
 /// `id=ID,audio=F.wav,poses=F.tum,array=PRESET|F.toml[,start=S][,pose_std_m=M][,yaw_std_deg=D]`.
@@ -61,6 +62,48 @@ pub struct RobotRecording {
     pub pose_std_m: Option<f64>,
     /// 1-σ yaw error of the poses (degrees).
     pub yaw_std_deg: Option<f64>,
+}
+
+impl RobotRecording {
+    /// The recordings `soundmap-sim run --record DIR` writes for `scenario`'s
+    /// robots: WAV and TUM per robot, with the scenario's SLAM pose error.
+    pub fn recorded(dir: &Path, scenario: &Scenario) -> Vec<RobotRecording> {
+        let (pos, yaw) = slam_pose_std(&scenario.slam);
+        scenario
+            .robots
+            .iter()
+            .map(|r| RobotRecording {
+                id: r.id.clone(),
+                audio: dir.join(format!("{}.wav", r.id)),
+                poses: dir.join(format!("{}.tum", r.id)),
+                array: r.array.clone(),
+                start_s: 0.0,
+                pose_std_m: Some(pos),
+                yaw_std_deg: Some(yaw.to_degrees()),
+            })
+            .collect()
+    }
+
+    /// The `--robot` argument that gives this recording ([`parse_robot`] reads it back).
+    pub fn to_argument(&self) -> String {
+        let mut a = format!(
+            "id={},audio={},poses={},array={}",
+            self.id,
+            self.audio.display(),
+            self.poses.display(),
+            self.array
+        );
+        if self.start_s != 0.0 {
+            a.push_str(&format!(",start={}", self.start_s));
+        }
+        if let Some(p) = self.pose_std_m {
+            a.push_str(&format!(",pose_std_m={p}"));
+        }
+        if let Some(y) = self.yaw_std_deg {
+            a.push_str(&format!(",yaw_std_deg={y}"));
+        }
+        a
+    }
 }
 
 /// Parses `key=value,…` (the `--robot` argument).

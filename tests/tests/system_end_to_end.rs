@@ -5,7 +5,6 @@ use std::path::PathBuf;
 
 use soundmap_sim::replay::{ReplayArgs, RobotRecording, TruthTrack, replay};
 use soundmap_sim::report::write_reports;
-use soundmap_sim::runner::robot::slam_pose_std;
 use soundmap_sim::runner::{RunOptions, run};
 use soundmap_sim::scenario::Scenario;
 
@@ -68,20 +67,7 @@ fn replay_of_a_recording_gives_the_same_estimates() {
     let dir = temp_dir("record");
     let direct =
         run(&scenario, &RunOptions { record_dir: Some(dir.clone()), ..RunOptions::default() }).unwrap();
-    let (pos, yaw) = slam_pose_std(&scenario.slam);
-    let robots = scenario
-        .robots
-        .iter()
-        .map(|r| RobotRecording {
-            id: r.id.clone(),
-            audio: dir.join(format!("{}.wav", r.id)),
-            poses: dir.join(format!("{}.tum", r.id)),
-            array: r.array.clone(),
-            start_s: 0.0,
-            pose_std_m: Some(pos),
-            yaw_std_deg: Some(yaw.to_degrees()),
-        })
-        .collect();
+    let robots = RobotRecording::recorded(&dir, &scenario);
     let args = ReplayArgs {
         robots,
         truths: vec![TruthTrack::always(dir.join("source.tum"))],

@@ -18,7 +18,6 @@ use std::path::PathBuf;
 
 use soundmap_sim::replay::{ReplayArgs, RobotRecording, parse_truth, replay};
 use soundmap_sim::report::{MultiTargetSummary, Summary, write_reports};
-use soundmap_sim::runner::robot::slam_pose_std;
 use soundmap_sim::runner::{RunOptions, run};
 use soundmap_sim::scenario::Scenario;
 
@@ -136,20 +135,7 @@ fn replay_with_several_truths_scores_like_the_run() {
     assert_eq!(truths.len(), 2, "{command}");
     assert!(truths[1].path.ends_with("source-1.tum"));
     assert_eq!(truths[1].active, vec![(8.0, 30.0)]);
-    let (pos, yaw) = slam_pose_std(&scenario.slam);
-    let robots = scenario
-        .robots
-        .iter()
-        .map(|r| RobotRecording {
-            id: r.id.clone(),
-            audio: dir.join(format!("{}.wav", r.id)),
-            poses: dir.join(format!("{}.tum", r.id)),
-            array: r.array.clone(),
-            start_s: 0.0,
-            pose_std_m: Some(pos),
-            yaw_std_deg: Some(yaw.to_degrees()),
-        })
-        .collect();
+    let robots = RobotRecording::recorded(&dir, &scenario);
     let args = ReplayArgs {
         robots,
         truths,

@@ -286,7 +286,7 @@ impl<'a> Sim<'a> {
             for (k, truth) in self.source_truth.iter().enumerate() {
                 recording::write_source_tum(&dir.join(recording::source_tum_name(k)), truth)?;
             }
-            write_replay_command(dir, scenario, &self.robots)?;
+            write_replay_command(dir, scenario)?;
         }
         let duration_s = blocks as f64 * BLOCK_LEN as f64 / self.fs as f64;
         let a = &scenario.active_positioning;
@@ -322,21 +322,10 @@ impl<'a> Sim<'a> {
 }
 
 /// Writes `replay-command.txt`: the `soundmap-sim replay` call that replays the recording.
-fn write_replay_command(
-    dir: &std::path::Path,
-    scenario: &Scenario,
-    robots: &[SimRobot],
-) -> Result<(), SimError> {
-    let (pos, yaw) = robot::slam_pose_std(&scenario.slam);
+fn write_replay_command(dir: &std::path::Path, scenario: &Scenario) -> Result<(), SimError> {
     let mut cmd = String::from("soundmap-sim replay");
-    for (r, spec) in robots.iter().zip(&scenario.robots) {
-        let id = r.id.as_str();
-        let d = dir.display();
-        cmd.push_str(&format!(
-            " \\\n  --robot id={id},audio={d}/{id}.wav,poses={d}/{id}.tum,array={},pose_std_m={pos},yaw_std_deg={}",
-            spec.array,
-            yaw.to_degrees()
-        ));
+    for r in crate::replay::RobotRecording::recorded(dir, scenario) {
+        cmd.push_str(&format!(" \\\n  --robot {}", r.to_argument()));
     }
     for (k, src) in scenario.sources.iter().enumerate() {
         let intervals = crate::replay::format_intervals(&src.active_intervals());
