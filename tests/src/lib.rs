@@ -7,6 +7,7 @@
 //! - [`slam_noise`]: the pose error a SLAM system adds (noise and slow drift).
 //! - [`scenario`]: scenarios in TOML, and the built-in ones.
 //! - [`runner`]: a scenario end to end over gRPC in simulated time.
+//! - [`pytools`]: the Python client libraries the system tests drive soundmap with.
 //! - [`replay`]: recorded trials (audio + poses + truth) through the same code path.
 //! - [`report`]: what a run records, and its CSV/JSON reports and plots.
 //! - [`error`]: the crate's error enum, [`SimError`].
@@ -14,6 +15,7 @@
 pub mod acoustics;
 pub mod error;
 pub mod kinematics;
+pub mod pytools;
 pub mod replay;
 pub mod report;
 pub mod runner;
