@@ -29,6 +29,12 @@ pub use messages::{
 pub use robot_id::RobotId;
 pub use stamp::Stamp;
 
+/// The encoded `FileDescriptorSet` of package `soundmap.v1` (with its imports):
+/// the protobuf schema of every `soundmap.v1` message, for recordings (MCAP)
+/// and gRPC server reflection.
+pub const FILE_DESCRIPTOR_SET: &[u8] =
+    include_bytes!(concat!(env!("OUT_DIR"), "/soundmap_v1_descriptor.bin"));
+
 /// The generated types of package `soundmap.v1`.
 #[allow(missing_docs, clippy::all, missing_debug_implementations)]
 pub mod wire {
