@@ -236,8 +236,49 @@ fn signature_stage(array: &ArrayGeometry, config: &PipelineConfig, tracks: usize
     best
 }
 
+/// Writes `seconds` of 16-channel 16 kHz audio (a white-noise plane wave from
+/// a new random direction every second, 20 dB SNR) as `DIR/agent-cpu.wav`
+/// (16-bit PCM) and the same samples as `DIR/agent-cpu.raw` (s16le), for
+/// timing the whole agent process on a file.
+fn write_audio(array: &ArrayGeometry, dir: &std::path::Path, seconds: usize) {
+    let mut rng = synth::rng(4242);
+    let mics = synth::positions(array);
+    let spec = hound::WavSpec {
+        channels: array.channels() as u16,
+        sample_rate: 16000,
+        bits_per_sample: 16,
+        sample_format: hound::SampleFormat::Int,
+    };
+    let mut wav = hound::WavWriter::create(dir.join("agent-cpu.wav"), spec).unwrap();
+    let mut raw = std::io::BufWriter::new(std::fs::File::create(dir.join("agent-cpu.raw")).unwrap());
+    for _ in 0..seconds {
+        let d = synth::random_direction(&array.default_region, &mut rng);
+        let mut x = synth::plane_wave(&mics, &d, 16000.0, 16000usize.next_power_of_two(), &mut rng);
+        synth::add_sensor_noise(&mut x, 20.0, &mut rng);
+        for t in 0..16000 {
+            for ch in &x {
+                let v = (ch[t] * 0.1 * 32768.0).round().clamp(-32768.0, 32767.0) as i16;
+                wav.write_sample(v).unwrap();
+                std::io::Write::write_all(&mut raw, &v.to_le_bytes()).unwrap();
+            }
+        }
+    }
+    wav.finalize().unwrap();
+    std::io::Write::flush(&mut raw).unwrap();
+}
+
 fn main() {
     let array = ArrayGeometry::load("16soundsusb-pioneer").unwrap();
+    let args: Vec<String> = std::env::args().collect();
+    if let Some(i) = args.iter().position(|a| a == "--write-audio") {
+        let dir = std::path::Path::new(args.get(i + 1).expect("--write-audio DIR"));
+        write_audio(&array, dir, 120);
+        println!(
+            "wrote {0}/agent-cpu.wav and {0}/agent-cpu.raw (120 s, 16 channels, 16 kHz, s16)",
+            dir.display()
+        );
+        return;
+    }
     let a = audio(&array);
     let default = PipelineConfig::default();
     let full_sphere = Some(RegionConfig { axis: [0.0, 0.0, 1.0], max_angle_deg: 180.0 });
@@ -276,7 +317,7 @@ fn main() {
         "configuration", "CPU-s/audio-s", "median°", "p95°", "tracks", "cells", "fine", "newton"
     );
     // Optional argument: only run configurations whose name contains it (for profiling).
-    let filter = std::env::args().skip(1).find(|a| !a.starts_with('-'));
+    let filter = args.iter().skip(1).find(|a| !a.starts_with('-'));
     if let Some(f) = &filter {
         for (name, cfg) in rows.iter().filter(|(n, _)| n.contains(f.as_str())) {
             let m = measure(&array, cfg, &a);

@@ -20,6 +20,7 @@
 //! file (`no such file`).
 
 mod live;
+mod pcm;
 mod raw;
 mod sniff;
 mod wav;
@@ -308,14 +309,6 @@ pub fn stamp_of_frame(start: Stamp, index: u64, sample_rate_hz: u32) -> Stamp {
     let rate = sample_rate_hz.max(1) as u128;
     let ns = (index as u128 * 1_000_000_000 + rate / 2) / rate;
     start.plus_ns(ns.min(i64::MAX as u128) as i64)
-}
-
-/// Copies one decoded input frame into one output frame through the channel map.
-#[inline]
-pub(crate) fn map_frame(input: &[f32], map: &[usize], out: &mut [f32]) {
-    for (o, &c) in out.iter_mut().zip(map) {
-        *o = input[c];
-    }
 }
 
 /// Checks that a block buffer has the size `next_block` requires.

@@ -1,14 +1,15 @@
 //! Raw interleaved PCM (s16le, s24le packed, s32le), as ODAS reads it, from a
 //! file, standard input or any byte stream.
 
-use std::io::{ErrorKind, Read};
+use std::io::Read;
 use std::path::Path;
 
 use soundmap_proto::Stamp;
 
+use super::pcm::{BlockReader, PcmEncoding};
 use super::sniff::{AudioFileKind, open_file, read_kind};
 use super::{
-    AudioSource, BlockOptions, FrameClock, RawLayout, audio_error, check_block_len, map_frame, resolve_shape,
+    AudioSource, BlockOptions, FrameClock, RawFormat, RawLayout, audio_error, check_block_len, resolve_shape,
 };
 use crate::AgentError;
 
@@ -19,10 +20,8 @@ pub struct RawSource {
     layout: RawLayout,
     map: Vec<usize>,
     hop_len: usize,
-    /// One block of input bytes.
-    bytes: Vec<u8>,
-    /// One input frame, decoded (all stream channels).
-    frame: Vec<f32>,
+    /// Reads and decodes one block at a time.
+    blocks: BlockReader,
     clock: FrameClock,
     ended: bool,
 }
@@ -80,31 +79,21 @@ impl RawSource {
         options: &BlockOptions,
     ) -> Result<Self, AgentError> {
         let map = resolve_shape(Path::new(name), layout.channels, layout.sample_rate_hz, options)?;
+        let encoding = match layout.format {
+            RawFormat::S16le => PcmEncoding::S16,
+            RawFormat::S24le => PcmEncoding::S24Packed,
+            RawFormat::S32le => PcmEncoding::S32,
+        };
         Ok(RawSource {
             name: name.to_owned(),
             reader,
             layout,
+            blocks: BlockReader::new(encoding, layout.channels, map.clone(), options.hop_len),
             map,
             hop_len: options.hop_len,
-            bytes: vec![0; options.hop_len * layout.channels * layout.format.bytes()],
-            frame: vec![0.0; layout.channels],
             clock: FrameClock::new(options.start, layout.sample_rate_hz),
             ended: false,
         })
-    }
-
-    /// Reads until the block buffer is full or the stream ends; returns the bytes read.
-    fn fill(&mut self) -> Result<usize, AgentError> {
-        let mut n = 0;
-        while n < self.bytes.len() {
-            match self.reader.read(&mut self.bytes[n..]) {
-                Ok(0) => break,
-                Ok(k) => n += k,
-                Err(e) if e.kind() == ErrorKind::Interrupted => {}
-                Err(source) => return Err(AgentError::Io { path: self.name.clone().into(), source }),
-            }
-        }
-        Ok(n)
     }
 }
 
@@ -131,10 +120,13 @@ impl AudioSource for RawSource {
         if self.ended {
             return Ok(None);
         }
-        let n = self.fill()?;
+        let n = self
+            .blocks
+            .fill(&mut *self.reader, usize::MAX)
+            .map_err(|source| AgentError::Io { path: self.name.clone().into(), source })?;
         let width = self.layout.format.bytes();
-        let frame_bytes = self.layout.channels * width;
-        if n < self.bytes.len() {
+        let frame_bytes = self.blocks.frame_bytes();
+        if n < self.hop_len * frame_bytes {
             self.ended = true;
         }
         if n == 0 {
@@ -151,20 +143,8 @@ impl AudioSource for RawSource {
                 ),
             ));
         }
-        let frames = n / frame_bytes;
         let stamp = self.clock.now();
-        for f in 0..self.hop_len {
-            let dst = &mut out[f * ch..(f + 1) * ch];
-            if f < frames {
-                let src = &self.bytes[f * frame_bytes..(f + 1) * frame_bytes];
-                for (v, b) in self.frame.iter_mut().zip(src.chunks_exact(width)) {
-                    *v = self.layout.format.decode(b);
-                }
-                map_frame(&self.frame, &self.map, dst);
-            } else {
-                dst.fill(0.0);
-            }
-        }
+        self.blocks.decode(n / frame_bytes, out);
         self.clock.advance(self.hop_len);
         Ok(Some(stamp))
     }

@@ -1,4 +1,8 @@
-//! Multichannel WAV files through hound: 16/24/32-bit integer PCM and 32-bit float.
+//! Multichannel WAV files: 16/24/32-bit integer PCM and 32-bit float.
+//!
+//! hound parses the header (format, extensible format, chunks up to `data`);
+//! the samples are then read in blocks of bytes and decoded in bulk
+//! ([`super::pcm`]), as raw PCM is, rather than one call per sample.
 
 use std::fs::File;
 use std::io::{BufReader, Read, Seek, SeekFrom};
@@ -6,30 +10,23 @@ use std::path::{Path, PathBuf};
 
 use soundmap_proto::Stamp;
 
+use super::pcm::{BlockReader, PcmEncoding};
 use super::sniff::{AudioFileKind, named_wav, open_file, read_kind};
-use super::{AudioSource, BlockOptions, FrameClock, audio_error, check_block_len, map_frame, resolve_shape};
+use super::{AudioSource, BlockOptions, FrameClock, audio_error, check_block_len, resolve_shape};
 use crate::AgentError;
-
-/// How samples are stored in the file.
-#[derive(Clone, Copy, Debug)]
-enum Encoding {
-    /// Integer PCM; divide by `scale` = 2^(bits−1) for ±1 full scale.
-    Int { scale: f32 },
-    /// IEEE float, already ±1 full scale.
-    Float,
-}
 
 /// A WAV file read block by block.
 pub struct WavSource {
     path: PathBuf,
     name: String,
-    reader: hound::WavReader<BufReader<File>>,
-    encoding: Encoding,
+    /// The file, positioned in the `data` chunk.
+    reader: BufReader<File>,
+    encoding: PcmEncoding,
     map: Vec<usize>,
     hop_len: usize,
     sample_rate_hz: u32,
-    /// One input frame, decoded (all file channels).
-    frame: Vec<f32>,
+    /// Reads and decodes one block at a time.
+    blocks: BlockReader,
     clock: FrameClock,
     frames_total: u64,
     frames_read: u64,
@@ -62,25 +59,38 @@ impl WavSource {
                 ),
             ));
         }
-        check_not_truncated(path, &mut file)?;
+        let data_len = check_not_truncated(path, &mut file)?;
         let reader = hound::WavReader::new(BufReader::new(file)).map_err(|e| match e {
             hound::Error::IoError(source) => AgentError::Io { path: path.to_path_buf(), source },
             hound::Error::Unsupported => audio_error(path, format!("unsupported WAV encoding ({SUPPORTED})")),
             other => audio_error(path, format!("not a supported WAV file: {other} ({SUPPORTED})")),
         })?;
         let spec = reader.spec();
-        let encoding = match (spec.sample_format, spec.bits_per_sample) {
-            (hound::SampleFormat::Int, bits @ (16 | 24 | 32)) => {
-                Encoding::Int { scale: (1u64 << (bits - 1)) as f32 }
+        // Container bytes per sample: the data chunk's length over its samples
+        // (hound checked it divides exactly).
+        let width = data_len.zip((reader.len() > 0).then_some(reader.len() as u64)).map(|(d, n)| d / n);
+        let encoding = match (spec.sample_format, spec.bits_per_sample, width) {
+            (hound::SampleFormat::Int, 16, None | Some(2)) => PcmEncoding::S16,
+            (hound::SampleFormat::Int, 24, None | Some(3)) => PcmEncoding::S24Packed,
+            (hound::SampleFormat::Int, 24, Some(4)) => PcmEncoding::S24In32,
+            (hound::SampleFormat::Int, 32, None | Some(4)) => PcmEncoding::S32,
+            (hound::SampleFormat::Float, 32, None | Some(4)) => PcmEncoding::F32,
+            (format, bits @ (16 | 24 | 32), Some(width)) => {
+                return Err(audio_error(
+                    path,
+                    format!(
+                        "{bits}-bit {} samples in {width}-byte containers are not supported ({SUPPORTED})",
+                        if format == hound::SampleFormat::Int { "integer" } else { "float" }
+                    ),
+                ));
             }
-            (hound::SampleFormat::Float, 32) => Encoding::Float,
-            (hound::SampleFormat::Int, bits) => {
+            (hound::SampleFormat::Int, bits, _) => {
                 return Err(audio_error(
                     path,
                     format!("{bits}-bit integer samples are not supported ({SUPPORTED})"),
                 ));
             }
-            (hound::SampleFormat::Float, bits) => {
+            (hound::SampleFormat::Float, bits, _) => {
                 return Err(audio_error(
                     path,
                     format!("{bits}-bit float samples are not supported ({SUPPORTED})"),
@@ -93,12 +103,12 @@ impl WavSource {
             path: path.to_path_buf(),
             name: path.display().to_string(),
             frames_total: reader.duration() as u64,
-            reader,
+            reader: reader.into_inner(),
             encoding,
+            blocks: BlockReader::new(encoding, in_channels, map.clone(), options.hop_len),
             map,
             hop_len: options.hop_len,
             sample_rate_hz: spec.sample_rate,
-            frame: vec![0.0; in_channels],
             clock: FrameClock::new(options.start, spec.sample_rate),
             frames_read: 0,
         })
@@ -107,42 +117,6 @@ impl WavSource {
     /// Frames (samples per channel) the header declares.
     pub fn frames_total(&self) -> u64 {
         self.frames_total
-    }
-
-    fn read_frame(&mut self) -> Result<(), AgentError> {
-        let truncated = |path: &Path, frames_read: u64, total: u64, e: hound::Error| match e {
-            hound::Error::IoError(ref io) if io.kind() == std::io::ErrorKind::UnexpectedEof => audio_error(
-                path,
-                format!(
-                    "truncated: the data chunk declares {total} frames but the file ends after {frames_read}"
-                ),
-            ),
-            hound::Error::IoError(source) => AgentError::Io { path: path.to_path_buf(), source },
-            other => audio_error(path, format!("bad sample data: {other}")),
-        };
-        match self.encoding {
-            Encoding::Int { scale } => {
-                let mut samples = self.reader.samples::<i32>();
-                for v in self.frame.iter_mut() {
-                    let s = samples.next().unwrap_or_else(|| {
-                        Err(hound::Error::IoError(std::io::ErrorKind::UnexpectedEof.into()))
-                    });
-                    *v = s.map_err(|e| truncated(&self.path, self.frames_read, self.frames_total, e))? as f32
-                        / scale;
-                }
-            }
-            Encoding::Float => {
-                let mut samples = self.reader.samples::<f32>();
-                for v in self.frame.iter_mut() {
-                    let s = samples.next().unwrap_or_else(|| {
-                        Err(hound::Error::IoError(std::io::ErrorKind::UnexpectedEof.into()))
-                    });
-                    *v = s.map_err(|e| truncated(&self.path, self.frames_read, self.frames_total, e))?;
-                }
-            }
-        }
-        self.frames_read += 1;
-        Ok(())
     }
 }
 
@@ -171,16 +145,25 @@ impl AudioSource for WavSource {
         if self.frames_read >= self.frames_total {
             return Ok(None);
         }
-        let stamp = self.clock.now();
-        for f in 0..self.hop_len {
-            let dst = &mut out[f * ch..(f + 1) * ch];
-            if self.frames_read < self.frames_total {
-                self.read_frame()?;
-                map_frame(&self.frame, &self.map, dst);
-            } else {
-                dst.fill(0.0);
-            }
+        let frames = (self.frames_total - self.frames_read).min(self.hop_len as u64) as usize;
+        let frame_bytes = self.blocks.frame_bytes();
+        let n = self
+            .blocks
+            .fill(&mut self.reader, frames * frame_bytes)
+            .map_err(|source| AgentError::Io { path: self.path.clone(), source })?;
+        if n < frames * frame_bytes {
+            return Err(audio_error(
+                &self.path,
+                format!(
+                    "truncated: the data chunk declares {} frames but the file ends after {}",
+                    self.frames_total,
+                    self.frames_read + (n / frame_bytes) as u64
+                ),
+            ));
         }
+        let stamp = self.clock.now();
+        self.blocks.decode(frames, out);
+        self.frames_read += frames as u64;
         self.clock.advance(self.hop_len);
         Ok(Some(stamp))
     }
@@ -188,16 +171,18 @@ impl AudioSource for WavSource {
 
 /// Walks the RIFF chunks to the `data` chunk and checks the file holds all the
 /// bytes its header declares, so that a truncated file fails before any audio is read.
-/// Files that are not RIFF/WAVE were rejected before.
-fn check_not_truncated(path: &Path, file: &mut File) -> Result<(), AgentError> {
+/// Files that are not RIFF/WAVE were rejected before. Returns the `data`
+/// chunk's length in bytes, if one was found.
+fn check_not_truncated(path: &Path, file: &mut File) -> Result<Option<u64>, AgentError> {
     let io = |source| AgentError::Io { path: path.to_path_buf(), source };
     let file_len = file.metadata().map_err(io)?.len();
     let mut header = [0u8; 12];
     if file.read_exact(&mut header).is_err() || &header[0..4] != b"RIFF" || &header[8..12] != b"WAVE" {
         file.seek(SeekFrom::Start(0)).map_err(io)?;
-        return Ok(());
+        return Ok(None);
     }
     let mut pos = 12u64;
+    let mut data_len = None;
     loop {
         let mut chunk = [0u8; 8];
         if file.read_exact(&mut chunk).is_err() {
@@ -215,6 +200,7 @@ fn check_not_truncated(path: &Path, file: &mut File) -> Result<(), AgentError> {
                     ),
                 ));
             }
+            data_len = Some(len);
             break;
         }
         pos += 8 + len + (len & 1);
@@ -223,5 +209,5 @@ fn check_not_truncated(path: &Path, file: &mut File) -> Result<(), AgentError> {
         }
     }
     file.seek(SeekFrom::Start(0)).map_err(io)?;
-    Ok(())
+    Ok(data_len)
 }
