@@ -100,6 +100,16 @@ pub enum Problem {
         /// Largest accepted lead.
         max_ms: u64,
     },
+    /// A time stamp too far behind the receiver's clock.
+    #[error("stamp {stamp_ns} ns is {behind_ms:.1} ms behind the receiver clock (at most {max_ms} ms)")]
+    TooOld {
+        /// Stamp found.
+        stamp_ns: i64,
+        /// How far behind it is.
+        behind_ms: f64,
+        /// Largest accepted age.
+        max_ms: u64,
+    },
     /// A time stamp before the Unix epoch.
     #[error("negative stamp {0} ns (stamps are Unix nanoseconds)")]
     NegativeStamp(i64),

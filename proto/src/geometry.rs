@@ -15,6 +15,8 @@ pub struct Limits {
     pub now: Stamp,
     /// Largest accepted lead of a stamp over `now`, nanoseconds.
     pub max_future_ns: i64,
+    /// Largest accepted age of a stamp behind `now`, nanoseconds.
+    pub max_past_ns: i64,
     /// Accepted deviation of a direction's norm from 1 (directions within it are renormalized).
     pub unit_vector_tolerance: f64,
     /// Accepted deviation of a quaternion's norm from 1 (quaternions within it are renormalized).
@@ -22,12 +24,20 @@ pub struct Limits {
 }
 
 impl Limits {
-    /// Default tolerances: 1e-3 on directions, 1e-2 on quaternions, stamps up to 1 s ahead.
+    /// Default tolerances: 1e-3 on directions, 1e-2 on quaternions, stamps up
+    /// to 1 s ahead and of any age (the coordinator sets its own horizon).
     pub fn at(now: Stamp) -> Self {
-        Limits { now, max_future_ns: 1_000_000_000, unit_vector_tolerance: 1e-3, quaternion_tolerance: 1e-2 }
+        Limits {
+            now,
+            max_future_ns: 1_000_000_000,
+            max_past_ns: i64::MAX,
+            unit_vector_tolerance: 1e-3,
+            quaternion_tolerance: 1e-2,
+        }
     }
 
-    /// Checks a Unix-nanosecond stamp: not negative, not too far ahead of `now`.
+    /// Checks a Unix-nanosecond stamp: not negative, not too far ahead of
+    /// `now`, not older than `max_past_ns` behind it.
     pub fn stamp(&self, ns: i64, field: &str) -> Result<Stamp, ValidationError> {
         if ns < 0 {
             return Err(ValidationError::new(field, Problem::NegativeStamp(ns)));
@@ -40,6 +50,17 @@ impl Limits {
                     stamp_ns: ns,
                     ahead_ms: ahead as f64 * 1e-6,
                     max_ms: (self.max_future_ns / 1_000_000) as u64,
+                },
+            ));
+        }
+        let behind = self.now.as_ns().saturating_sub(ns);
+        if behind > self.max_past_ns {
+            return Err(ValidationError::new(
+                field,
+                Problem::TooOld {
+                    stamp_ns: ns,
+                    behind_ms: behind as f64 * 1e-6,
+                    max_ms: (self.max_past_ns / 1_000_000) as u64,
                 },
             ));
         }

@@ -23,6 +23,12 @@ pub const MAX_SIGNATURE_BANDS: usize = 64;
 /// Accepted range of a signature value, dB.
 pub const SIGNATURE_DB_RANGE: (f32, f32) = (-200.0, 200.0);
 
+/// Accepted range of a DoA's 1-σ angular uncertainty, radians (0 on the wire
+/// means unknown). Below 1e-4 rad (0.006°) no microphone array resolves a
+/// direction, and a weight 1/σ² past 1e8 only breaks the solvers; above π
+/// the direction says nothing.
+pub const ANGULAR_SIGMA_RANGE_RAD: (f64, f64) = (1e-4, std::f64::consts::PI);
+
 /// A robot's microphone array as the coordinator needs it.
 #[derive(Clone, Debug, PartialEq)]
 pub struct ArrayInfo {
@@ -333,10 +339,11 @@ impl TrackedDoa {
             ));
         }
         let sigma = finite(d.angular_sigma_rad, &format!("{field}.angular_sigma_rad"))?;
-        if !(0.0..=std::f64::consts::PI).contains(&sigma) {
+        let (lo, hi) = ANGULAR_SIGMA_RANGE_RAD;
+        if !(sigma == 0.0 || (lo..=hi).contains(&sigma)) {
             return Err(ValidationError::new(
                 format!("{field}.angular_sigma_rad"),
-                Problem::OutOfRange { value: sigma, range: "[0, π] (0 = unknown)" },
+                Problem::OutOfRange { value: sigma, range: "0 (unknown) or [1e-4, π] rad" },
             ));
         }
         let field = format!("{field}.signature_db");

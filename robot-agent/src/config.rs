@@ -47,6 +47,8 @@ pub struct CoordinatorConfig {
     pub endpoint: String,
     /// Bearer token (from `token` or the contents of `token_file`).
     pub token: Option<String>,
+    /// TLS settings (`ca_file`, optional `cert_file` + `key_file`, `tls_domain`), required for `https://`.
+    pub tls: Option<crate::link::ClientTls>,
 }
 
 /// Where tracked DoAs come from.

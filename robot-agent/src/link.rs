@@ -21,11 +21,13 @@
 
 mod client;
 mod live;
+pub mod tls;
 
 use std::time::Duration;
 
 pub use client::LinkClient;
 pub use live::{Hop, Link, LinkHandle, LinkInputs, LinkStats};
+pub use tls::ClientTls;
 
 pub use crate::agent::{CoordinatorEvent, StreamErrorReport};
 
@@ -36,6 +38,8 @@ pub struct LinkConfig {
     pub endpoint: String,
     /// Bearer token sent as `authorization: Bearer …`, when the coordinator requires one.
     pub token: Option<String>,
+    /// TLS settings, exactly when `endpoint` is `https://`.
+    pub tls: Option<ClientTls>,
     /// Most observations kept while unacknowledged; the oldest is dropped beyond it.
     pub buffer_capacity: usize,
     /// A heartbeat is sent after this long without sending anything.
@@ -54,6 +58,7 @@ impl LinkConfig {
         LinkConfig {
             endpoint: endpoint.into(),
             token: None,
+            tls: None,
             buffer_capacity: 1024,
             heartbeat_interval: Duration::from_secs(1),
             backoff_initial: Duration::from_millis(200),

@@ -32,8 +32,10 @@ pub struct CoordinatorConfig {
     pub triangulation: TriangulationConfig,
     /// Where estimates are written besides the watch stream.
     pub output: OutputConfig,
-    /// Robot authentication.
+    /// Who may use the services: robot and operator credentials.
     pub auth: AuthConfig,
+    /// TLS for both services (`[tls]`), mutual TLS with `client_ca`.
+    pub tls: TlsConfig,
     /// Source tracking (`[tracking]`): the Kalman filter fed with every robot's DoA.
     pub tracking: TrackerConfig,
     /// Active positioning (`[active_positioning]`): on/off, θ band, commands.
@@ -122,8 +124,12 @@ pub struct DoaConfig {
 #[derive(Clone, Debug, PartialEq, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct LimitsConfig {
-    /// Largest accepted lead of a stamp over the coordinator clock (ms).
+    /// Largest accepted lead of a stamp over the coordinator clock (ms), in [0, 86 400 000].
     pub max_future_ms: u64,
+    /// Largest accepted age of a stamp behind the coordinator clock (ms), in
+    /// [1000, 604 800 000]. Default 300 000 (5 min): older observations cannot
+    /// be aligned with anything live, and a stamp from 1970 is a broken clock.
+    pub max_past_ms: u64,
     /// Accepted deviation of a direction's norm from 1.
     pub unit_vector_tolerance: f64,
     /// Accepted deviation of a quaternion's norm from 1.
@@ -206,15 +212,73 @@ impl SourcesConfig {
     }
 }
 
-/// Robot authentication by bearer token (`authorization: Bearer TOKEN`).
+/// Who may use the services (see `service::auth`): robots by bearer token
+/// (`authorization: Bearer TOKEN`) or client certificate, operators by token
+/// or certificate with a role. As soon as any credential is configured
+/// (a robot token, an operator, or `tls.client_ca`) no call is anonymous.
 #[derive(Clone, Debug, Default, PartialEq, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct AuthConfig {
-    /// Refuse robots without a known token.
+    /// Refuse calls without a known credential. Implied by any configured
+    /// credential; `true` without any credential is a configuration error.
     pub required: bool,
     /// Robot id → token. A robot presenting a token is that robot: its hello
     /// must carry the same id.
     pub tokens: BTreeMap<String, String>,
+    /// Operator name → token and role (`read`: `GetState`, `WatchEstimates`;
+    /// `control`: also `SetActivePositioning`, `SetFocus`).
+    pub operators: BTreeMap<String, OperatorConfig>,
+}
+
+impl AuthConfig {
+    /// Whether any credential is configured, `client_ca` counted by the caller.
+    pub fn has_credentials(&self) -> bool {
+        !self.tokens.is_empty() || !self.operators.is_empty()
+    }
+}
+
+/// `[auth.operators.NAME]`.
+#[derive(Clone, Debug, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct OperatorConfig {
+    /// Bearer token; without one the operator is known by a client
+    /// certificate naming it (needs `tls.client_ca`).
+    #[serde(default)]
+    pub token: Option<String>,
+    /// What the operator may do.
+    pub role: Role,
+}
+
+/// An operator's role; `control` includes `read`.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Role {
+    /// Read-only monitoring calls.
+    Read,
+    /// Also the calls that change the coordinator's behaviour.
+    Control,
+}
+
+/// `[tls]`: the coordinator's certificate and key (PEM) for TLS on both
+/// services, and the CA (PEM) that signs client certificates for mutual TLS.
+#[derive(Clone, Debug, Default, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct TlsConfig {
+    /// Certificate chain, leaf first.
+    pub cert: Option<PathBuf>,
+    /// Private key (PKCS#8, PKCS#1 or SEC1).
+    pub key: Option<PathBuf>,
+    /// CA certificates of client certificates: robots and operators may then
+    /// authenticate by certificate (its DNS/URI SAN or subject CN is the
+    /// robot id or operator name). Clients without one may still use a token.
+    pub client_ca: Option<PathBuf>,
+}
+
+impl TlsConfig {
+    /// Whether TLS is on.
+    pub fn enabled(&self) -> bool {
+        self.cert.is_some()
+    }
 }
 
 impl Default for CoordinatorConfig {
@@ -228,6 +292,7 @@ impl Default for CoordinatorConfig {
             triangulation: TriangulationConfig::default(),
             output: OutputConfig::default(),
             auth: AuthConfig::default(),
+            tls: TlsConfig::default(),
             tracking: TrackerConfig::default(),
             active_positioning: ActivePositioningConfig::default(),
             planner: PlannerConfig::default(),
@@ -256,7 +321,12 @@ impl Default for DoaConfig {
 
 impl Default for LimitsConfig {
     fn default() -> Self {
-        LimitsConfig { max_future_ms: 1000, unit_vector_tolerance: 1e-3, quaternion_tolerance: 1e-2 }
+        LimitsConfig {
+            max_future_ms: 1000,
+            max_past_ms: 300_000,
+            unit_vector_tolerance: 1e-3,
+            quaternion_tolerance: 1e-2,
+        }
     }
 }
 
@@ -283,12 +353,7 @@ impl CoordinatorConfig {
     pub fn validate(&self, path: &Path) -> Result<(), ServerError> {
         let err = |field: &str, message: String| Err(config_error(path, field, &message));
         let positive = |v: f64| v.is_finite() && v > 0.0;
-        if self.liveness.stale_after_ms == 0 {
-            return err("liveness.stale_after_ms", "must be > 0".into());
-        }
-        if self.alignment.window_ms == 0 {
-            return err("alignment.window_ms", "must be > 0".into());
-        }
+        self.validate_durations(path)?;
         if self.alignment.history_ms < self.alignment.window_ms {
             return err(
                 "alignment.history_ms",
@@ -338,20 +403,98 @@ impl CoordinatorConfig {
             }
             _ => {}
         }
+        self.validate_auth(path)?;
+        self.tracking.validate().map_err(|e| invalid_key(path, e.within("tracking")))?;
+        self.sources.validate().map_err(|e| invalid_key(path, e.within("sources")))?;
+        self.validate_positioning(path)?;
+        Ok(())
+    }
+
+    /// Every duration in bounds that convert to nanoseconds without overflow.
+    fn validate_durations(&self, path: &Path) -> Result<(), ServerError> {
+        const DAY_MS: u64 = 86_400_000;
+        for (field, v, lo, hi) in [
+            ("liveness.stale_after_ms", self.liveness.stale_after_ms, 1, DAY_MS),
+            ("liveness.tick_ms", self.liveness.tick_ms, 0, 60_000),
+            ("alignment.window_ms", self.alignment.window_ms, 1, 60_000),
+            ("alignment.history_ms", self.alignment.history_ms, 1, 3_600_000),
+            ("limits.max_future_ms", self.limits.max_future_ms, 0, DAY_MS),
+            ("limits.max_past_ms", self.limits.max_past_ms, 1000, 7 * DAY_MS),
+            ("active_positioning.evaluate_period_ms", self.active_positioning.evaluate_period_ms, 1, DAY_MS),
+        ] {
+            if !(lo..=hi).contains(&v) {
+                return Err(config_error(path, field, &format!("{v} not in [{lo}, {hi}] ms")));
+            }
+        }
+        let ap = &self.active_positioning;
+        for (field, v) in [
+            ("active_positioning.command_deadline_s", ap.command_deadline_s),
+            ("active_positioning.retry_after_s", ap.retry_after_s),
+        ] {
+            if v > 86_400.0 {
+                return Err(config_error(path, field, &format!("{v} not in [0, 86400] s")));
+            }
+        }
+        Ok(())
+    }
+
+    /// Tokens, operators and their relation to `[tls]`; see [`AuthConfig`].
+    fn validate_auth(&self, path: &Path) -> Result<(), ServerError> {
+        let err = |field: &str, message: String| Err(config_error(path, field, &message));
+        let mut seen: BTreeMap<String, String> = BTreeMap::new();
+        let mut check_token = |field: String, token: &str| {
+            if token.len() < 16 || !token.bytes().all(|b| b.is_ascii_graphic()) {
+                return err(
+                    &field,
+                    "tokens must be at least 16 visible ASCII characters, without spaces".into(),
+                );
+            }
+            if let Some(first) = seen.insert(token.to_owned(), field.clone()) {
+                return err(&field, format!("the same token as {first}: every credential must be unique"));
+            }
+            Ok(())
+        };
         for (robot, token) in &self.auth.tokens {
             if let Err(e) = soundmap_proto::RobotId::parse(robot, &format!("auth.tokens.{robot}")) {
                 return Err(invalid_key(path, e));
             }
-            if token.len() < 16 {
-                return err(&format!("auth.tokens.{robot}"), "tokens must be at least 16 characters".into());
+            check_token(format!("auth.tokens.{robot}"), token)?;
+        }
+        for (name, op) in &self.auth.operators {
+            let field = format!("auth.operators.{name}");
+            if let Err(e) = soundmap_proto::RobotId::parse(name, &field) {
+                return Err(invalid_key(path, e));
+            }
+            if self.auth.tokens.contains_key(name) {
+                return err(&field, format!("{name} is also a robot id in auth.tokens: names must differ"));
+            }
+            match &op.token {
+                Some(token) => check_token(format!("{field}.token"), token)?,
+                None if self.tls.client_ca.is_none() => {
+                    return err(
+                        &format!("{field}.token"),
+                        "missing: without a token the operator needs a client certificate, \
+                         so tls.client_ca must be set"
+                            .into(),
+                    );
+                }
+                None => {}
             }
         }
-        if self.auth.required && self.auth.tokens.is_empty() {
-            return err("auth.required", "true, but auth.tokens is empty: no robot could connect".into());
+        if self.auth.required && !self.auth.has_credentials() && self.tls.client_ca.is_none() {
+            return err(
+                "auth.required",
+                "true, but no credential is configured (auth.tokens, auth.operators, tls.client_ca)".into(),
+            );
         }
-        self.tracking.validate().map_err(|e| invalid_key(path, e.within("tracking")))?;
-        self.sources.validate().map_err(|e| invalid_key(path, e.within("sources")))?;
-        self.validate_positioning(path)?;
+        match (&self.tls.cert, &self.tls.key) {
+            (Some(_), None) => return err("tls.key", "missing: tls.cert needs its key".into()),
+            (None, Some(_)) => return err("tls.cert", "missing: tls.key needs its certificate".into()),
+            _ => {}
+        }
+        if self.tls.client_ca.is_some() && self.tls.cert.is_none() {
+            return err("tls.client_ca", "mutual TLS needs tls.cert and tls.key".into());
+        }
         Ok(())
     }
 

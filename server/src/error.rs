@@ -31,6 +31,9 @@ pub enum ServerError {
     /// Missing or unknown credentials (UNAUTHENTICATED).
     #[error("{0}")]
     Unauthenticated(String),
+    /// Known credentials used beyond their rights (PERMISSION_DENIED).
+    #[error("{0}")]
+    PermissionDenied(String),
     /// Credentials for another robot (PERMISSION_DENIED).
     #[error("hello.robot_id: {claimed} does not match the authenticated identity {authenticated}")]
     IdentityMismatch {

@@ -27,6 +27,7 @@ pub mod planner;
 pub mod ray;
 pub mod service;
 pub mod stats;
+pub mod tls;
 pub mod tracking;
 pub mod triangulation;
 pub mod uncertainty;

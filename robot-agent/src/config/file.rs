@@ -42,6 +42,10 @@ struct CoordinatorFile {
     endpoint: String,
     token: Option<String>,
     token_file: Option<PathBuf>,
+    ca_file: Option<PathBuf>,
+    cert_file: Option<PathBuf>,
+    key_file: Option<PathBuf>,
+    tls_domain: Option<String>,
 }
 
 #[derive(Debug, Deserialize)]
@@ -282,7 +286,33 @@ impl CoordinatorFile {
         if token.as_ref().is_some_and(|t| t.is_empty() || t.chars().any(|ch| ch.is_control())) {
             return Err(c.err("coordinator.token", "must be non-empty printable text"));
         }
-        Ok(CoordinatorConfig { endpoint: self.endpoint, token })
+        let tls = match self.ca_file {
+            Some(ca) => Some(
+                crate::link::ClientTls::from_files(
+                    &c.resolve(ca),
+                    self.cert_file.map(|f| c.resolve(f)).as_deref(),
+                    self.key_file.map(|f| c.resolve(f)).as_deref(),
+                    self.tls_domain,
+                )
+                .map_err(|(field, message)| c.err(field, message))?,
+            ),
+            None => {
+                for (field, set) in [
+                    ("coordinator.cert_file", self.cert_file.is_some()),
+                    ("coordinator.key_file", self.key_file.is_some()),
+                    ("coordinator.tls_domain", self.tls_domain.is_some()),
+                ] {
+                    if set {
+                        return Err(c.err(field, "needs coordinator.ca_file (TLS settings)"));
+                    }
+                }
+                None
+            }
+        };
+        crate::link::tls::check_scheme(&self.endpoint, tls.as_ref()).map_err(|m| {
+            c.err(if tls.is_some() { "coordinator.endpoint" } else { "coordinator.ca_file" }, m)
+        })?;
+        Ok(CoordinatorConfig { endpoint: self.endpoint, token, tls })
     }
 }
 
@@ -447,6 +477,7 @@ impl LinkFile {
         Ok(LinkConfig {
             endpoint: coordinator.endpoint.clone(),
             token: coordinator.token.clone(),
+            tls: coordinator.tls.clone(),
             buffer_capacity: self.buffer_capacity,
             heartbeat_interval: Duration::from_millis(self.heartbeat_interval_ms),
             backoff_initial: Duration::from_millis(self.backoff_initial_ms),

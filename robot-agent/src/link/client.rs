@@ -10,6 +10,7 @@ use soundmap_proto::{
 use tokio::sync::mpsc;
 use tokio_stream::wrappers::ReceiverStream;
 
+use super::tls::{ClientTls, check_scheme};
 use super::{CoordinatorEvent, StreamErrorReport};
 use crate::AgentError;
 
@@ -50,10 +51,29 @@ impl LinkClient {
         token: Option<String>,
         timeout: Duration,
     ) -> Result<Self, AgentError> {
+        Self::connect_secure(endpoint, hello, token, None, timeout).await
+    }
+
+    /// [`connect_with_timeout`](Self::connect_with_timeout) over TLS when
+    /// `tls` is given, which must be exactly when `endpoint` is `https://`
+    /// (no plaintext to an `https://` endpoint, see [`super::tls`]).
+    pub async fn connect_secure(
+        endpoint: &str,
+        hello: &Hello,
+        token: Option<String>,
+        tls: Option<&ClientTls>,
+        timeout: Duration,
+    ) -> Result<Self, AgentError> {
         let link = |m: String| AgentError::Link(format!("{endpoint}: {m}"));
-        let ep = tonic::transport::Endpoint::from_shared(endpoint.to_owned())
+        check_scheme(endpoint, tls).map_err(link)?;
+        let mut ep = tonic::transport::Endpoint::from_shared(endpoint.to_owned())
             .map_err(|e| link(format!("bad endpoint: {e}")))?
             .connect_timeout(timeout);
+        if let Some(tls) = tls {
+            ep = ep
+                .tls_config(tls.to_tonic())
+                .map_err(|e| link(format!("TLS settings: {}", source_chain(&e))))?;
+        }
         let attempt = async {
             let channel =
                 ep.connect().await.map_err(|e| link(format!("cannot connect: {}", source_chain(&e))))?;

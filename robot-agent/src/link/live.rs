@@ -285,7 +285,10 @@ impl Task {
         let hello = self.core.hello().clone();
         let token = self.config.token.clone();
         let timeout = self.config.connect_timeout;
-        Box::pin(async move { LinkClient::connect_with_timeout(&endpoint, &hello, token, timeout).await })
+        let tls = self.config.tls.clone();
+        Box::pin(
+            async move { LinkClient::connect_secure(&endpoint, &hello, token, tls.as_ref(), timeout).await },
+        )
     }
 
     fn on_connected(&mut self, client: LinkClient) {

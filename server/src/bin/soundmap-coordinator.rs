@@ -28,7 +28,8 @@ struct Args {
     /// Append every accepted observation to this JSON-lines file (overrides `output.observations_jsonl`).
     #[arg(long, value_name = "FILE")]
     observations_jsonl: Option<PathBuf>,
-    /// Check the configuration and exit.
+    /// Check the configuration and exit: every key, the TLS files, that the
+    /// output files are writable and that the listen address can be bound.
     #[arg(long)]
     check: bool,
 }
@@ -56,6 +57,7 @@ async fn main() -> anyhow::Result<()> {
         config.output.observations_jsonl = Some(path);
     }
     if args.check {
+        check_environment(&config)?;
         println!("configuration OK");
         return Ok(());
     }
@@ -68,6 +70,34 @@ async fn main() -> anyhow::Result<()> {
     tracing::info!("shutting down");
     running.shutdown().await?;
     Ok(())
+}
+
+/// What `--check` verifies beyond the file's keys: the TLS files parse, every
+/// output file can be appended to (created and removed again when it does
+/// not exist yet), and the listen address can be bound now.
+fn check_environment(config: &CoordinatorConfig) -> anyhow::Result<()> {
+    soundmap_server::tls::server_config(&config.tls)?;
+    for (key, path) in [
+        ("output.estimates_jsonl", &config.output.estimates_jsonl),
+        ("output.observations_jsonl", &config.output.observations_jsonl),
+    ] {
+        if let Some(path) = path {
+            check_writable(path).with_context(|| format!("{key}: {} is not writable", path.display()))?;
+        }
+    }
+    std::net::TcpListener::bind(config.listen)
+        .with_context(|| format!("listen: cannot bind {}", config.listen))?;
+    Ok(())
+}
+
+fn check_writable(path: &std::path::Path) -> std::io::Result<()> {
+    let mut options = std::fs::OpenOptions::new();
+    if path.exists() {
+        options.append(true).open(path).map(drop)
+    } else {
+        options.append(true).create_new(true).open(path)?;
+        std::fs::remove_file(path)
+    }
 }
 
 async fn shutdown_signal() -> anyhow::Result<()> {

@@ -140,6 +140,7 @@ impl Coordinator {
         Limits {
             now,
             max_future_ns: self.config.limits.max_future_ms as i64 * 1_000_000,
+            max_past_ns: self.config.limits.max_past_ms as i64 * 1_000_000,
             unit_vector_tolerance: self.config.limits.unit_vector_tolerance,
             quaternion_tolerance: self.config.limits.quaternion_tolerance,
         }

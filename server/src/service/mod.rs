@@ -121,6 +121,9 @@ pub async fn start(
 ) -> Result<RunningCoordinator, ServerError> {
     // Validated before anything starts.
     let coordinator = Coordinator::new(config.clone())?;
+    let tls = crate::tls::server_config(&config.tls)?;
+    let authenticator = auth::Authenticator::new(&config.auth, &config.tls);
+    log_access(&config, tls.is_some());
     let local_addr =
         listener.local_addr().map_err(|source| ServerError::Io { path: "<listener>".into(), source })?;
     let (requests, requests_rx) = mpsc::channel(REQUEST_CAPACITY);
@@ -142,7 +145,8 @@ pub async fn start(
     };
     let (stopping, stop_rx) = tokio::sync::watch::channel(false);
     let link = robot_link::RobotLinkService::new(&config, requests.clone(), clock.clone(), stop_rx.clone());
-    let monitoring = monitoring::MonitoringService::new(requests.clone(), estimates.clone(), stop_rx.clone());
+    let monitoring = monitoring::MonitoringService::new(requests.clone(), estimates.clone(), stop_rx.clone())
+        .with_auth(authenticator);
     let ticker = match config.liveness.tick_ms {
         0 => None,
         ms => {
@@ -161,7 +165,7 @@ pub async fn start(
     let (shutdown_tx, shutdown_rx) = oneshot::channel::<()>();
     let incoming = tonic::transport::server::TcpIncoming::from(listener).with_nodelay(Some(true));
     let server = tokio::spawn(
-        tonic::transport::Server::builder()
+        server_builder(tls)?
             .add_service(health)
             .add_service(RobotLinkServer::new(link))
             .add_service(MonitoringServer::new(monitoring))
@@ -182,4 +186,37 @@ pub async fn start(
         sink,
         observation_sink,
     })
+}
+
+/// A gRPC server builder, with TLS when `[tls]` gives a certificate.
+fn server_builder(
+    tls: Option<tonic::transport::ServerTlsConfig>,
+) -> Result<tonic::transport::Server, ServerError> {
+    let builder = tonic::transport::Server::builder();
+    match tls {
+        Some(tls) => builder
+            .tls_config(tls)
+            .map_err(|e| ServerError::Io { path: "[tls]".into(), source: std::io::Error::other(e) }),
+        None => Ok(builder),
+    }
+}
+
+/// Says at start who may connect, and warns about a monitoring service no one can use.
+fn log_access(config: &CoordinatorConfig, tls: bool) {
+    let auth = &config.auth;
+    let mtls = config.tls.client_ca.is_some();
+    if auth::Authenticator::new(auth, &config.tls).is_closed() {
+        tracing::info!(
+            tls,
+            mutual_tls = mtls,
+            robot_tokens = auth.tokens.len(),
+            operators = auth.operators.len(),
+            "authentication on: every call needs a credential"
+        );
+        if auth.operators.is_empty() && !mtls {
+            tracing::warn!("no [auth.operators]: Monitoring (GetState, WatchEstimates, control) refuses every call");
+        }
+    } else {
+        tracing::warn!(tls, "no credentials configured: anyone who reaches the port may use every service");
+    }
 }

@@ -1,4 +1,8 @@
 //! `soundmap.v1.Monitoring`: state snapshots, the estimate stream, operator control.
+//!
+//! Every call is authorized first ([`Authenticator::authorize_operator`]):
+//! `GetState` and `WatchEstimates` need role `read`, `SetActivePositioning`
+//! and `SetFocus` role `control`.
 
 use std::pin::Pin;
 use std::sync::Arc;
@@ -11,7 +15,9 @@ use tokio::sync::{broadcast, mpsc, oneshot};
 use tonic::{Request, Response, Status};
 
 use super::actor;
+use super::auth::Authenticator;
 use super::status::{self, to_status};
+use crate::config::Role;
 use crate::coordinator::PositioningUpdate;
 
 /// The monitoring service.
@@ -20,6 +26,7 @@ pub struct MonitoringService {
     requests: mpsc::Sender<actor::Request>,
     estimates: broadcast::Sender<Arc<wire::SourceEstimate>>,
     stopping: tokio::sync::watch::Receiver<bool>,
+    auth: Authenticator,
 }
 
 impl MonitoringService {
@@ -29,7 +36,16 @@ impl MonitoringService {
         estimates: broadcast::Sender<Arc<wire::SourceEstimate>>,
         stopping: tokio::sync::watch::Receiver<bool>,
     ) -> Self {
-        MonitoringService { requests, estimates, stopping }
+        MonitoringService { requests, estimates, stopping, auth: Authenticator::default() }
+    }
+
+    /// The same service with calls authorized by `auth`.
+    pub fn with_auth(self, auth: Authenticator) -> Self {
+        MonitoringService { auth, ..self }
+    }
+
+    fn authorize<T>(&self, request: &Request<T>, role: Role) -> Result<(), Status> {
+        self.auth.authorize_operator(request, role).map_err(|e| to_status(&e))
     }
 }
 
@@ -41,8 +57,9 @@ impl Monitoring for MonitoringService {
 
     async fn get_state(
         &self,
-        _: Request<wire::GetStateRequest>,
+        request: Request<wire::GetStateRequest>,
     ) -> Result<Response<wire::CoordinatorState>, Status> {
+        self.authorize(&request, Role::Read)?;
         let (reply, answer) = oneshot::channel();
         self.requests.send(actor::Request::GetState { reply }).await.map_err(|_| status::shutting_down())?;
         Ok(Response::new(answer.await.map_err(|_| status::shutting_down())?))
@@ -50,8 +67,9 @@ impl Monitoring for MonitoringService {
 
     async fn watch_estimates(
         &self,
-        _: Request<wire::WatchEstimatesRequest>,
+        request: Request<wire::WatchEstimatesRequest>,
     ) -> Result<Response<Self::WatchEstimatesStream>, Status> {
+        self.authorize(&request, Role::Read)?;
         let rx = self.estimates.subscribe();
         // The stream ends when the coordinator shuts down.
         let stream = futures::stream::unfold(
@@ -82,6 +100,7 @@ impl Monitoring for MonitoringService {
         &self,
         request: Request<wire::SetActivePositioningRequest>,
     ) -> Result<Response<wire::ActivePositioning>, Status> {
+        self.authorize(&request, Role::Control)?;
         let update = PositioningUpdate::from_wire(request.get_ref());
         let (reply, answer) = oneshot::channel();
         self.requests
@@ -96,6 +115,7 @@ impl Monitoring for MonitoringService {
         &self,
         request: Request<wire::SetFocusRequest>,
     ) -> Result<Response<wire::Focus>, Status> {
+        self.authorize(&request, Role::Control)?;
         let source_id = request.get_ref().source_id;
         let (reply, answer) = oneshot::channel();
         self.requests

@@ -1,7 +1,7 @@
 //! `soundmap.v1.RobotLink`: one bidirectional stream per robot.
 
 use std::pin::Pin;
-use std::sync::Arc;
+use std::sync::{Arc, Mutex};
 use std::time::Instant;
 
 use futures::Stream;
@@ -43,10 +43,12 @@ impl RobotLinkService {
         let limits = Limits {
             now: soundmap_proto::Stamp::ZERO,
             max_future_ns: config.limits.max_future_ms as i64 * 1_000_000,
+            max_past_ns: config.limits.max_past_ms as i64 * 1_000_000,
             unit_vector_tolerance: config.limits.unit_vector_tolerance,
             quaternion_tolerance: config.limits.quaternion_tolerance,
         };
-        RobotLinkService { requests, clock, auth: Authenticator::new(&config.auth), limits, stopping }
+        let auth = Authenticator::new(&config.auth, &config.tls);
+        RobotLinkService { requests, clock, auth, limits, stopping }
     }
 
     fn limits(&self) -> Limits {
@@ -64,13 +66,16 @@ impl RobotLink for RobotLinkService {
         &self,
         request: Request<Streaming<wire::RobotMessage>>,
     ) -> Result<Response<Self::ConnectStream>, Status> {
-        let identity = self.auth.identify(request.metadata()).map_err(|e| to_status(&e))?;
+        let principal = self.auth.identify(&request).map_err(|e| to_status(&e))?;
         let mut inbound = request.into_inner();
-        let first = inbound.message().await?.ok_or_else(status::closed_before_hello)?;
+        let first = inbound.message().await.map_err(|s| status::inbound_failed(&s))?;
+        let first = first.ok_or_else(status::closed_before_hello)?;
         let hello = match &first.msg {
             Some(Msg::Hello(h)) => Hello::from_wire(h, &self.limits()).map_err(|e| to_status(&e.into()))?,
             _ => return Err(status::first_message_not_hello()),
         };
+        let identity =
+            self.auth.authorize_robot(principal.as_ref(), &hello.robot_id).map_err(|e| to_status(&e))?;
         let (outbound, rx) = mpsc::channel(OUTBOUND_CAPACITY);
         let (reply, answer) = oneshot::channel();
         let stream_hello = hello.clone();
@@ -79,27 +84,48 @@ impl RobotLink for RobotLinkService {
             .await
             .map_err(|_| status::shutting_down())?;
         let welcome = answer.await.map_err(|_| status::shutting_down())?.map_err(|e| to_status(&e))?;
-        tokio::spawn(read_stream(inbound, welcome.conn, stream_hello, self.clone()));
+        let ending = StreamEnd::default();
+        tokio::spawn(read_stream(inbound, welcome.conn, stream_hello, self.clone(), ending.clone()));
         // Queued messages go out first; on shutdown the stream ends with
         // UNAVAILABLE so that the robot reconnects later.
-        let stream =
-            futures::stream::unfold((rx, Some(self.stopping.clone())), |(mut rx, stop)| async move {
-                let mut stop = stop?;
-                let next = tokio::select! {
-                    biased;
-                    m = rx.recv() => Some(m),
-                    _ = stop.wait_for(|s| *s) => None,
-                };
-                match next {
-                    Some(Some(m)) => Some((Ok(m), (rx, Some(stop)))),
-                    // The coordinator dropped this stream: a newer connection took the robot over.
-                    Some(None) if !*stop.borrow() => {
-                        Some((Err(status::replaced_by_newer_connection()), (rx, None)))
-                    }
-                    _ => Some((Err(status::shutting_down()), (rx, None))),
-                }
-            });
+        let state = (rx, Some(self.stopping.clone()), ending);
+        let stream = futures::stream::unfold(state, |(mut rx, stop, ending)| async move {
+            let mut stop = stop?;
+            let next = tokio::select! {
+                biased;
+                m = rx.recv() => Some(m),
+                _ = stop.wait_for(|s| *s) => None,
+            };
+            match next {
+                Some(Some(m)) => Some((Ok(m), (rx, Some(stop), ending))),
+                // The coordinator dropped this stream: the robot's own stream
+                // ended (as it did), or a newer connection took the robot over.
+                Some(None) if !*stop.borrow() => match ending.take() {
+                    Some(Ok(())) => None,
+                    Some(Err(s)) => Some((Err(s), (rx, None, ending))),
+                    None => Some((Err(status::replaced_by_newer_connection()), (rx, None, ending))),
+                },
+                _ => Some((Err(status::shutting_down()), (rx, None, ending))),
+            }
+        });
         Ok(Response::new(Box::pin(stream)))
+    }
+}
+
+/// How the robot's side of a stream ended, set by [`read_stream`] before it
+/// tells the coordinator: `Ok` for a normal close (the answer then ends with
+/// OK), the status to end with otherwise. Unset when the coordinator dropped
+/// the stream for a newer connection.
+#[derive(Clone, Debug, Default)]
+struct StreamEnd(Arc<Mutex<Option<Result<(), Status>>>>);
+
+impl StreamEnd {
+    fn set(&self, end: Result<(), Status>) {
+        *self.0.lock().unwrap_or_else(|e| e.into_inner()) = Some(end);
+    }
+
+    fn take(&self) -> Option<Result<(), Status>> {
+        self.0.lock().unwrap_or_else(|e| e.into_inner()).take()
     }
 }
 
@@ -114,6 +140,7 @@ async fn read_stream(
     conn: ConnId,
     hello: Hello,
     svc: RobotLinkService,
+    ending: StreamEnd,
 ) {
     let mut stop = svc.stopping.clone();
     loop {
@@ -123,9 +150,13 @@ async fn read_stream(
         };
         let msg = match next {
             Ok(Some(m)) => m,
-            Ok(None) => break,
-            Err(status) => {
-                tracing::debug!(conn, "robot stream ended: {status}");
+            Ok(None) => {
+                ending.set(Ok(()));
+                break;
+            }
+            Err(s) => {
+                tracing::debug!(conn, "robot stream ended: {s}");
+                ending.set(Err(status::inbound_failed(&s)));
                 break;
             }
         };

@@ -17,7 +17,7 @@ pub fn code(e: &ServerError) -> Code {
         ServerError::UnknownCommand { .. } => Code::NotFound,
         ServerError::AlreadyConnected(_) => Code::AlreadyExists,
         ServerError::Unauthenticated(_) => Code::Unauthenticated,
-        ServerError::IdentityMismatch { .. } => Code::PermissionDenied,
+        ServerError::IdentityMismatch { .. } | ServerError::PermissionDenied(_) => Code::PermissionDenied,
         ServerError::Config { .. } | ServerError::Io { .. } => Code::Internal,
         ServerError::ShuttingDown => Code::Unavailable,
     }
@@ -46,6 +46,18 @@ pub fn first_message_not_hello() -> Status {
 /// The end of a robot stream that a newer connection of the same robot took over (ABORTED).
 pub fn replaced_by_newer_connection() -> Status {
     Status::aborted("this stream was replaced by a newer connection of the same robot")
+}
+
+/// The end of a robot stream whose inbound side failed: a message that does
+/// not decode is INVALID_ARGUMENT, one over the size limit RESOURCE_EXHAUSTED
+/// (tonic reports them as INTERNAL and OUT_OF_RANGE); anything else (the peer
+/// reset the stream) keeps its code.
+pub fn inbound_failed(s: &Status) -> Status {
+    match s.code() {
+        Code::Internal => Status::invalid_argument(format!("msg: undecodable message: {}", s.message())),
+        Code::OutOfRange => Status::resource_exhausted(format!("msg: {}", s.message())),
+        _ => s.clone(),
+    }
 }
 
 /// The field an error is about, when it names one.

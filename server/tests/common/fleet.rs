@@ -123,6 +123,7 @@ impl Fleet {
                     &soundmap_proto::Limits {
                         now: Stamp::ZERO,
                         max_future_ns: i64::MAX,
+                        max_past_ns: i64::MAX,
                         unit_vector_tolerance: 1e-3,
                         quaternion_tolerance: 1e-2,
                     },
