@@ -316,16 +316,17 @@ impl Agent {
     // ------------------------------------------------------------ inputs
 
     /// A hop's tracked DoAs at `stamp` (the DoA stamp). The σ floor is applied
-    /// here; the hop waits for its pose.
+    /// here, and σ kept within the contract's range; the hop waits for its pose.
     pub fn handle_hop(&mut self, now: Stamp, stamp: Stamp, mut doas: Vec<TrackedDoa>) {
         self.stats.hops += 1;
         let floor = self.config.doa_sigma_floor_rad.max(0.0);
+        let (min_sigma, max_sigma) = soundmap_proto::messages::ANGULAR_SIGMA_RANGE_RAD;
         for d in &mut doas {
             d.angular_sigma_rad = d
                 .angular_sigma_rad
                 .map(|s| s.hypot(floor))
                 .filter(|s| s.is_finite() && *s > 0.0)
-                .map(|s| s.min(std::f64::consts::PI));
+                .map(|s| s.clamp(min_sigma, max_sigma));
         }
         self.attacher.push_frame(stamp, doas, &mut self.attached);
         self.handle_timeout(now);
