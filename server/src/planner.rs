@@ -23,7 +23,11 @@
 //! 5. every waypoint is checked against the hard constraints (step, range,
 //!    free space with clearance, separation) before it becomes a [`Goal`].
 //!
-//! Submodules: [`band`] (the θ band), [`cadence`] (when cycles run), [`config`], [`free_space`], [`bearings`], [`assignment`],
+//! Before any position exists, [`Planner::plan_from_bearings`] moves the
+//! robots from what they hear ([`start`]): spread across a heard bearing,
+//! approach along it, rescue deaf robots, explore when nobody hears.
+//!
+//! Submodules: [`start`], [`band`] (the θ band), [`cadence`] (when cycles run), [`config`], [`free_space`], [`bearings`], [`assignment`],
 //! [`pose`], `cycle`, `qp`, `sampling`, `waypoints`, `hysteresis`, and the input/outcome types.
 
 pub mod assignment;
@@ -39,6 +43,7 @@ mod outcome;
 pub mod pose;
 mod qp;
 mod sampling;
+pub mod start;
 mod waypoints;
 
 use nalgebra::Point2;
@@ -51,6 +56,7 @@ pub use free_space::{Blocked, FreeSpace, FreeSpaceConfig, HalfPlane};
 pub use input::{PlannerInput, RobotState, SourceEstimate};
 pub use outcome::{Goal, HoldReason, InfeasibleReason, PlanOutcome};
 pub use soundmap_proto::RepositionReason;
+pub use start::{Heard, StartGoal, StartPlan, StartRobot};
 
 use bearings::{PatternRobot, PatternSettings, TargetPattern, choose_pattern};
 use hysteresis::{Decision, Memory, Situation, decide};
@@ -65,6 +71,7 @@ pub struct Planner {
     free: FreeSpace,
     memory: Memory,
     cadence: Cadence,
+    explore: start::Explore,
 }
 
 /// Per-robot facts of one cycle.
@@ -82,7 +89,7 @@ impl Planner {
         config.validate()?;
         let free = FreeSpace::new(&config.free_space, config.wall_clearance_m());
         let cadence = Cadence::new(0, config.planning_period_s);
-        Ok(Planner { config, free, memory: Memory::default(), cadence })
+        Ok(Planner { config, free, memory: Memory::default(), cadence, explore: start::Explore::default() })
     }
 
     /// The same planner evaluating at most once per `evaluate_period_ns`
@@ -129,6 +136,7 @@ impl Planner {
     /// restarts the cadence: the next call is due and may issue goals.
     pub fn reset(&mut self) {
         self.memory = Memory::default();
+        self.explore.clear();
         self.cadence.restart();
     }
 
@@ -270,6 +278,35 @@ impl Planner {
             })
             .collect();
         PlanOutcome::Planned(goals)
+    }
+
+    /// One cycle of planning without a source estimate, from what the robots
+    /// hear (see [`start`]); `hint` is a recent but unusable source position.
+    /// Obeys the same re-tasking clock as [`Planner::plan`].
+    pub fn plan_from_bearings(
+        &mut self,
+        now: Stamp,
+        robots: &[StartRobot],
+        hint: Option<nalgebra::Point3<f64>>,
+    ) -> StartPlan {
+        self.cadence.cycle_ran(now);
+        if let Some(wait_s) = self.cadence.retask_wait_s(now) {
+            return StartPlan::Hold(format!("not due for {wait_s:.1} s"));
+        }
+        let cfg = &self.config;
+        let settings = start::StartSettings {
+            preferred_range_m: cfg.preferred_range_m,
+            min_range_m: cfg.min_range_m,
+            min_separation_m: cfg.min_separation_m,
+            array_height_m: 0.5,
+        };
+        let plan = start::plan(&self.free, &settings, &mut self.explore, robots, hint);
+        if matches!(&plan, StartPlan::Goals(g) if !g.is_empty()) {
+            self.cadence.retasked(now);
+            // The Fisher planning that follows starts afresh.
+            self.memory = Memory::default();
+        }
+        plan
     }
 
     /// Final target per robot: its pattern spot when free, else the nearest free

@@ -391,7 +391,12 @@ impl Coordinator {
             self.tracking.start_if_needed(*newest, &e.triangulation);
         }
         self.tracking.flush(now);
-        let (mut estimate, _) = aligned?;
+        let Some((mut estimate, _)) = aligned else {
+            if self.positioning.due(now) {
+                self.reposition_without_estimate(now);
+            }
+            return None;
+        };
         estimate.filtered = self.tracking.estimate_at(estimate.stamp);
         estimate.source_id = self.tracking.live_track_id().unwrap_or(0);
         self.counters.estimates += 1;
@@ -407,7 +412,12 @@ impl Coordinator {
     /// estimate. The planner works on the primary source: the longest-followed
     /// one with an estimate in this batch.
     fn estimate_sources(&mut self, now: Stamp) -> Vec<Estimate> {
-        let Some(t) = self.pending.take() else { return Vec::new() };
+        let Some(t) = self.pending.take() else {
+            if self.positioning.due(now) {
+                self.reposition_without_estimate(now);
+            }
+            return Vec::new();
+        };
         let (aligned, ids) = self.aligned_rays(now, t);
         let Some(map) = self.sound_map.as_mut() else { return Vec::new() };
         map.step(now, &aligned, &self.config.triangulation);
@@ -444,6 +454,8 @@ impl Coordinator {
             let served = served.clone();
             self.reposition(now, &served);
             self.serving = None;
+        } else if estimates.is_empty() && self.positioning.due(now) {
+            self.reposition_without_estimate(now);
         }
         estimates
     }

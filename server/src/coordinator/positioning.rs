@@ -9,7 +9,8 @@ use soundmap_proto::{RepositionCommand, RepositionReason, Stamp, ValidationError
 use crate::config::{ActivePositioningConfig, CoordinatorConfig, invalid_key};
 use crate::error::ServerError;
 use crate::planner::{
-    Goal, HoldReason, InfeasibleReason, PlanOutcome, Planner, PlannerConfig, PlannerInput, ThetaBand,
+    Goal, HoldReason, InfeasibleReason, PlanOutcome, Planner, PlannerConfig, PlannerInput, StartGoal,
+    StartPlan, StartRobot, ThetaBand,
 };
 
 /// Longest operator text of a command (the contract's text limit).
@@ -130,6 +131,62 @@ impl Positioning {
         outcome
     }
 
+    /// One cycle of planning from bearings (no usable source estimate; see
+    /// [`crate::planner::start`]): the goals to send, each saying why.
+    /// `why_no_source` says why the Fisher planning could not run.
+    pub fn plan_from_bearings(
+        &mut self,
+        now: Stamp,
+        robots: &[StartRobot],
+        hint: Option<nalgebra::Point3<f64>>,
+        why_no_source: &str,
+    ) -> Vec<StartGoal> {
+        match self.planner.plan_from_bearings(now, robots, hint) {
+            StartPlan::Hold(why) => {
+                if !why.starts_with("not due") {
+                    self.record(now, PlanKind::Hold, "no_source", format!("{why_no_source}; {why}"));
+                }
+                Vec::new()
+            }
+            StartPlan::Goals(goals) => {
+                let key = if goals.iter().all(|g| g.why.starts_with("nothing heard")) {
+                    "exploring"
+                } else {
+                    "from_bearings"
+                };
+                let detail = match goals.first() {
+                    Some(g) => format!("{why_no_source}; {} goal(s): {}", goals.len(), g.why),
+                    None => format!("{why_no_source}; robots already on their way"),
+                };
+                self.record(now, PlanKind::Planned, key, truncate(detail));
+                if !goals.is_empty()
+                    && let Some(s) = self.status.as_mut()
+                {
+                    s.last_planned = Some(now);
+                }
+                goals
+            }
+        }
+    }
+
+    /// The command for a goal of planning from bearings, with the next id.
+    pub fn start_command(&mut self, now: Stamp, goal: &StartGoal) -> RepositionCommand {
+        let id = self.next_command_id;
+        self.next_command_id += 1;
+        if let Some(s) = self.status.as_mut() {
+            s.commands_issued += 1;
+        }
+        RepositionCommand {
+            command_id: id,
+            goal_map_from_base: goal.map_from_base,
+            look_at_in_map: goal.look_at_in_map,
+            reason: RepositionReason::ThetaOutOfBand,
+            detail: truncate(goal.why.clone()),
+            deadline: now.plus_secs(self.config.command_deadline_s),
+            issued: now,
+        }
+    }
+
     /// Appends to the detail of the latest decision (e.g. goals not re-sent).
     pub fn annotate(&mut self, text: &str) {
         if let Some(s) = self.status.as_mut() {
@@ -159,9 +216,7 @@ impl Positioning {
             detail.push_str("; ");
             detail.push_str(note);
         }
-        if detail.chars().count() > MAX_DETAIL_CHARS {
-            detail = detail.chars().take(MAX_DETAIL_CHARS - 1).collect::<String>() + "…";
-        }
+        detail = truncate(detail);
         RepositionCommand {
             command_id: id,
             goal_map_from_base: goal.map_from_base,
@@ -186,6 +241,15 @@ impl Positioning {
             predicted_gdop: previous.as_ref().and_then(|p| p.predicted_gdop),
             used_fallback: previous.is_some_and(|p| p.used_fallback),
         });
+    }
+}
+
+/// `text` cut to the contract's limit.
+fn truncate(text: String) -> String {
+    if text.chars().count() > MAX_DETAIL_CHARS {
+        text.chars().take(MAX_DETAIL_CHARS - 1).collect::<String>() + "…"
+    } else {
+        text
     }
 }
 

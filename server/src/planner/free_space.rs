@@ -159,6 +159,20 @@ impl FreeSpace {
         self.blocked(p).is_none()
     }
 
+    /// Distance from `p` to the nearest wall or obstacle edge (m); infinite
+    /// when the free space has no edges.
+    pub fn distance_to_edges(&self, p: &Point2<f64>) -> f64 {
+        self.edges
+            .iter()
+            .map(|(a, b, _)| (p - closest_on_segment(a, b, p)).norm())
+            .fold(f64::INFINITY, f64::min)
+    }
+
+    /// The room's vertices, when a room is known.
+    pub fn room(&self) -> Option<&[Point2<f64>]> {
+        self.room.as_deref()
+    }
+
     /// A convex region of free space around a free `seed`, as half-planes
     /// (`None` when the seed is not free). Greedy separating lines: edges in
     /// order of distance; an edge not yet kept `clearance_m` away by a line gets
