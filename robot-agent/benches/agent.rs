@@ -209,6 +209,7 @@ fn signature_stage(array: &ArrayGeometry, config: &PipelineConfig, tracks: usize
             activity: 1.0,
             angular_sigma_rad: 0.01,
             confirmed: true,
+            silent_s: 0.0,
         })
         .collect();
     let reported: Vec<usize> = (0..tracks).collect();

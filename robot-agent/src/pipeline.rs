@@ -161,6 +161,8 @@ pub struct Pipeline {
     stamp_offset_ns: i64,
     /// σ floor of reported DoAs (rad).
     doa_sigma_floor_rad: f64,
+    /// Longest silence of a reported track, s (see [`TrackerConfig::report_max_silence_s`]).
+    report_max_silence_s: f64,
 }
 
 impl Pipeline {
@@ -204,6 +206,7 @@ impl Pipeline {
             },
             stamp_offset_ns: (offset_samples * 1e9 / fs as f64).round() as i64,
             doa_sigma_floor_rad: floor.to_radians(),
+            report_max_silence_s: config.tracker.report_max_silence_s,
         })
     }
 
@@ -272,7 +275,10 @@ impl Pipeline {
             self.srp.process(self.stft.spectra(), &mut r.potentials);
             self.tracker.update(&r.potentials, &mut r.tracks);
             r.reported.clear();
-            r.reported.extend((0..r.tracks.len()).filter(|&i| r.tracks[i].confirmed));
+            let max_silence = self.report_max_silence_s;
+            r.reported.extend(
+                (0..r.tracks.len()).filter(|&i| r.tracks[i].confirmed && r.tracks[i].silent_s <= max_silence),
+            );
             let tracks = &r.tracks;
             r.reported.sort_unstable_by(|&a, &b| {
                 let (a, b) = (&tracks[a], &tracks[b]);

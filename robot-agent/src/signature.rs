@@ -480,6 +480,7 @@ mod tests {
             activity: 1.0,
             angular_sigma_rad: 0.01,
             confirmed: true,
+            silent_s: 0.0,
         };
         let mut out = Vec::new();
         s.update(&spectra, &[track], &[0], &mut out);
@@ -510,6 +511,7 @@ mod tests {
             activity: 1.0,
             angular_sigma_rad: 0.01,
             confirmed: true,
+            silent_s: 0.0,
         };
         let tracks = [track(5), track(9)];
         let mut out = Vec::with_capacity(4 * 24);

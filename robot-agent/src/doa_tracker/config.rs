@@ -43,8 +43,17 @@ pub struct TrackerConfig {
     pub overlap_inflation: f64,
     /// Time constant of the activity, seconds.
     pub activity_time_constant_s: f64,
-    /// A track without detection for this long dies, seconds.
+    /// A track without detection for this long dies, seconds. Long enough to
+    /// hold a talker's id over the pauses between phrases (≈ 0.5–1.5 s).
     pub max_coast_s: f64,
+    /// While a track has no detection, its angular velocity decays with this
+    /// time constant, seconds (a coasting track holds its direction instead
+    /// of extrapolating a velocity learnt from reverberant detections).
+    pub coast_velocity_time_constant_s: f64,
+    /// A confirmed track is reported only while its last detection is at most
+    /// this old, seconds: a coasting track keeps its id but its direction is
+    /// a guess, and it is in the array frame, which turns with the robot.
+    pub report_max_silence_s: f64,
     /// Two tracks closer than this merge (the younger dies), degrees.
     pub merge_deg: f64,
     /// Most tracks at once.
@@ -59,7 +68,7 @@ impl Default for TrackerConfig {
             noise_sigmas: 4.0,
             birth_window_frames: 10,
             birth_min_hits: 7,
-            birth_gate_deg: 6.0,
+            birth_gate_deg: 10.0,
             confirm_hits: 5,
             confirm_window_frames: 12,
             update_min_coherence: 0.08,
@@ -71,7 +80,9 @@ impl Default for TrackerConfig {
             min_sigma_deg: 0.02,
             overlap_inflation: 1.0,
             activity_time_constant_s: 0.15,
-            max_coast_s: 0.6,
+            max_coast_s: 1.5,
+            coast_velocity_time_constant_s: 0.2,
+            report_max_silence_s: 0.3,
             merge_deg: 5.0,
             max_tracks: 8,
         }

@@ -48,6 +48,21 @@ impl SphereKf {
         (0.5 * (self.p[(0, 0)] + self.p[(1, 1)])).max(0.0).sqrt()
     }
 
+    /// Scales the angular velocity by `factor` ∈ [0, 1] with its uncertainty
+    /// (velocity rows and columns of `P` by `factor`, so `P_ωω` by its square):
+    /// the velocity step of an Ornstein–Uhlenbeck model, which a coasting
+    /// track follows so that neither its direction nor its gate runs away.
+    pub fn damp_velocity(&mut self, factor: f64) {
+        let f = factor.clamp(0.0, 1.0);
+        self.omega *= f;
+        for i in 0..4 {
+            for j in 2..4 {
+                self.p[(i, j)] *= f;
+                self.p[(j, i)] *= f;
+            }
+        }
+    }
+
     /// Predicts `dt` seconds ahead with white angular-acceleration noise of
     /// spectral density `q` (rad²/s³) per axis.
     pub fn predict(&mut self, dt: f64, q: f64) {
