@@ -11,6 +11,7 @@ use crate::error::ServerError;
 use soundmap_proto::{Problem, ValidationError};
 
 use crate::planner::{PlannerConfig, ThetaBand};
+pub use crate::resources::{ServerConfig, StateConfig};
 use crate::tracking::TrackerConfig;
 use crate::triangulation::{RobustLoss, TriangulationConfig};
 
@@ -45,6 +46,10 @@ pub struct CoordinatorConfig {
     pub planner: PlannerConfig,
     /// How many sources are followed (`[sources]`; see the sound map).
     pub sources: SourcesConfig,
+    /// Connection, stream, rate and memory bounds (`[server]`, see [`crate::resources`]).
+    pub server: ServerConfig,
+    /// Where state survives a restart (`[state]`, see [`crate::resources`]).
+    pub state: StateConfig,
 }
 
 /// Active positioning: whether the coordinator commands the robots, the θ band
@@ -297,6 +302,8 @@ impl Default for CoordinatorConfig {
             active_positioning: ActivePositioningConfig::default(),
             planner: PlannerConfig::default(),
             sources: SourcesConfig::default(),
+            server: ServerConfig::default(),
+            state: StateConfig::default(),
         }
     }
 }
@@ -406,6 +413,8 @@ impl CoordinatorConfig {
         self.validate_auth(path)?;
         self.tracking.validate().map_err(|e| invalid_key(path, e.within("tracking")))?;
         self.sources.validate().map_err(|e| invalid_key(path, e.within("sources")))?;
+        self.server.validate().map_err(|e| invalid_key(path, e.within("server")))?;
+        self.state.validate().map_err(|e| invalid_key(path, e.within("state")))?;
         self.validate_positioning(path)?;
         Ok(())
     }

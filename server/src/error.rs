@@ -59,6 +59,9 @@ pub enum ServerError {
         /// Underlying error.
         source: std::io::Error,
     },
+    /// A resource bound of `[server]` is reached (RESOURCE_EXHAUSTED).
+    #[error("{0}")]
+    Exhausted(String),
     /// The coordinator task has stopped (UNAVAILABLE).
     #[error("coordinator is shutting down")]
     ShuttingDown,

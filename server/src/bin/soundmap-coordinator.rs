@@ -28,6 +28,10 @@ struct Args {
     /// Append every accepted observation to this JSON-lines file (overrides `output.observations_jsonl`).
     #[arg(long, value_name = "FILE")]
     observations_jsonl: Option<PathBuf>,
+    /// Keep state that survives a restart (sources, robots, operator settings)
+    /// in DIR (overrides `state.dir`; the systemd unit gives its StateDirectory).
+    #[arg(long, value_name = "DIR")]
+    state_dir: Option<PathBuf>,
     /// Check the configuration and exit: every key, the TLS files, that the
     /// output files are writable and that the listen address can be bound.
     #[arg(long)]
@@ -55,6 +59,9 @@ async fn main() -> anyhow::Result<()> {
     }
     if let Some(path) = args.observations_jsonl {
         config.output.observations_jsonl = Some(path);
+    }
+    if let Some(dir) = args.state_dir {
+        config.state.dir = Some(dir);
     }
     if args.check {
         check_environment(&config)?;

@@ -17,10 +17,14 @@
 pub mod commands;
 mod doa_queue;
 pub mod estimate;
+mod persist;
 pub mod positioning;
+pub mod records;
+mod registry;
 mod reposition;
 pub mod robots;
 pub mod sound_map;
+mod source_ids;
 pub mod tracking;
 
 use std::collections::{BTreeMap, HashMap};
@@ -33,6 +37,7 @@ use soundmap_proto::{
 pub use commands::{CommandLog, ConnId, Outbound, Outgoing, Refusal};
 pub use estimate::{BestSource, Estimate};
 pub use positioning::{PlanKind, PlannerStatus, PositioningSettings, PositioningUpdate};
+use robots::IndexPool;
 pub use robots::{Liveness, RobotEntry, StoredObservation, TaggedRay};
 pub use tracking::TrackingCounters;
 
@@ -77,6 +82,12 @@ pub struct Counters {
     pub estimates: u64,
     /// Estimate requests that found fewer than two aligned robots.
     pub unaligned: u64,
+    /// Observations dropped from robots' histories by `server.max_history_per_robot`.
+    pub history_trimmed: u64,
+    /// Robots forgotten (retention passed, or replaced at `server.max_robots`).
+    pub robots_forgotten: u64,
+    /// Hellos refused: `server.max_robots` robots known and all connected.
+    pub robots_refused: u64,
 }
 
 /// The coordinator state.
@@ -103,6 +114,8 @@ pub struct Coordinator {
     positioning: Positioning,
     /// Messages for robots' streams, sent by the shell before the batch's acknowledgements.
     outbox: Vec<Outgoing>,
+    /// Tracker indices of the robots.
+    indices: IndexPool,
 }
 
 impl Coordinator {
@@ -127,6 +140,7 @@ impl Coordinator {
             counters: Counters::default(),
             liveness: BTreeMap::new(),
             outbox: Vec::new(),
+            indices: IndexPool::default(),
         })
     }
 
@@ -188,7 +202,8 @@ impl Coordinator {
                 true
             }
             None => {
-                let index = self.robots.len() as u32;
+                self.make_room(&id)?;
+                let index = self.indices.take();
                 self.robots.insert(id.clone(), RobotEntry::new(hello, index, conn, now));
                 false
             }
@@ -219,6 +234,8 @@ impl Coordinator {
         if let Some(id) = self.connections.remove(&conn) {
             if let Some(e) = self.robots.get_mut(&id) {
                 e.conn = None;
+                // A disconnected robot takes no part in alignment.
+                e.history = Default::default();
                 self.tracking.forget_robot(e.index);
                 if let Some(m) = self.sound_map.as_mut() {
                     m.forget_robot(e.index);
@@ -250,6 +267,7 @@ impl Coordinator {
         let several = self.sound_map.is_some();
         let default_sigma = self.config.doa.default_sigma_deg.to_radians();
         let history_ns = self.config.alignment.history_ms as i64 * 1_000_000;
+        let max_history = self.config.server.max_history_per_robot;
         let entry = match self.entry_mut(conn, "observation") {
             Ok(e) => e,
             Err(e) => {
@@ -309,7 +327,8 @@ impl Coordinator {
         }
         let index = entry.index;
         let all_rays = several.then(|| stored.rays.clone());
-        entry.remember(stored, history_ns);
+        let trimmed = entry.remember(stored, history_ns, max_history);
+        self.counters.history_trimmed += trimmed as u64;
         self.counters.observations += 1;
         if let (Some(map), Some(rays)) = (self.sound_map.as_mut(), all_rays) {
             if !rays.is_empty() {
@@ -353,6 +372,7 @@ impl Coordinator {
         if let Some(m) = self.sound_map.as_mut() {
             m.flush(now);
         }
+        self.forget_gone(now);
         let stale_after_ns = self.stale_after_ns();
         let mut changes = Vec::new();
         for (id, e) in &self.robots {

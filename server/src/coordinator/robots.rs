@@ -1,5 +1,14 @@
 //! What the coordinator knows about each robot: identity, connection,
 //! liveness, and a short history of its rays.
+//!
+//! The registry is bounded: a robot's history by time (`alignment.history_ms`
+//! before its newest stamp) *and* by count (`server.max_history_per_robot`, so
+//! that a flood of equal stamps cannot grow it), and is dropped when the robot
+//! disconnects (a disconnected robot takes no part in alignment). Robots
+//! disconnected longer than `server.robot_retention_s` are forgotten, and at
+//! most `server.max_robots` are known: a new one replaces the one gone longest.
+//! Tracker indices of forgotten robots are given again ([`IndexPool`]) only
+//! once retention has passed, long after the trackers' lag and labels forgot them.
 
 use std::collections::VecDeque;
 
@@ -115,13 +124,22 @@ impl RobotEntry {
         }
     }
 
-    /// Appends an observation and forgets those older than `history_ns` before it.
-    pub fn remember(&mut self, obs: StoredObservation, history_ns: i64) {
+    /// Appends an observation and forgets those older than `history_ns` before
+    /// it, and the oldest beyond `max_len`. Returns how many the count bound dropped.
+    pub fn remember(&mut self, obs: StoredObservation, history_ns: i64, max_len: usize) -> usize {
         let horizon = obs.stamp.plus_ns(-history_ns);
         self.history.push_back(obs);
         while self.history.front().is_some_and(|o| o.stamp < horizon) {
             self.history.pop_front();
         }
+        let over = self.history.len().saturating_sub(max_len.max(1));
+        self.history.drain(..over);
+        over
+    }
+
+    /// Whether it is disconnected and was last heard more than `retention_ns` before `now`.
+    pub fn gone_longer_than(&self, now: Stamp, retention_ns: i64) -> bool {
+        self.conn.is_none() && now - self.last_seen > retention_ns
     }
 
     /// The kept observation with a dominant ray nearest to `t`, if within `window_ns`.
@@ -140,5 +158,51 @@ impl RobotEntry {
             }
         }
         best
+    }
+}
+
+/// Tracker indices of robots: the smallest free one is given, so indices stay
+/// below the number of robots known at once.
+#[derive(Clone, Debug, Default)]
+pub struct IndexPool {
+    next: u32,
+    free: std::collections::BTreeSet<u32>,
+}
+
+impl IndexPool {
+    /// A pool where `used` are taken.
+    pub fn with_used(used: impl IntoIterator<Item = u32>) -> Self {
+        let used: std::collections::BTreeSet<u32> = used.into_iter().collect();
+        let next = used.last().map_or(0, |m| m + 1);
+        IndexPool { next, free: (0..next).filter(|i| !used.contains(i)).collect() }
+    }
+
+    /// A free index.
+    pub fn take(&mut self) -> u32 {
+        if let Some(i) = self.free.pop_first() {
+            return i;
+        }
+        self.next += 1;
+        self.next - 1
+    }
+
+    /// Gives `index` back.
+    pub fn give_back(&mut self, index: u32) {
+        self.free.insert(index);
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn index_pool_reuses_the_smallest_free_index() {
+        let mut p = IndexPool::with_used([0, 2]);
+        assert_eq!(p.take(), 1);
+        assert_eq!(p.take(), 3);
+        p.give_back(0);
+        assert_eq!(p.take(), 0);
+        assert_eq!(p.take(), 4);
     }
 }

@@ -36,6 +36,7 @@ use crate::stats::chi2_quantile;
 use crate::tracking::{InitOutcome, SourceTracker, TrackEstimate, TrackerConfig, UpdateOutcome};
 use crate::triangulation::{Gate, GateReason, Triangulation, TriangulationConfig, triangulate};
 
+pub use super::records::SourceRecord;
 pub use super::robots::TaggedRay;
 
 /// A robot-local track: (robot index, the robot's track id).
@@ -71,6 +72,7 @@ struct Remembered {
     first_heard: Stamp,
     position_in_map: Point3<f64>,
     last_heard: Stamp,
+    covariance: nalgebra::Matrix3<f64>,
 }
 
 /// Which source a robot-local track fed last, and when.
@@ -94,6 +96,11 @@ struct Free {
 /// (a fan and a talker); above it, the correlation × γ is added to the
 /// candidate's score.
 const MIN_SIGNATURE_SIMILARITY: f64 = 0.3;
+
+/// A source not heard for this long is *silent* (ns): a robot-local track
+/// that no source has claimed yet costs γ/2 more to give it (see
+/// [`crate::association`]).
+const SILENT_NS: i64 = 500_000_000;
 
 /// Labels not refreshed for this long are forgotten (ns).
 const LABEL_TTL_NS: i64 = 5_000_000_000;
@@ -199,6 +206,7 @@ impl SoundMap {
                         first_heard: s.first_heard,
                         position_in_map: e.position_in_map,
                         last_heard: s.last_heard,
+                        covariance: e.position_covariance(),
                     });
                 }
                 self.labels.retain(|_, l| l.source != s.id);
@@ -227,6 +235,7 @@ impl SoundMap {
                         Some(nis) if nis <= self.gate => match label {
                             Some(l) if l == s.id => nis - half,
                             Some(_) => nis + half,
+                            None if q.stamp - s.last_heard > SILENT_NS => nis + half,
                             None => nis,
                         },
                         _ => f64::INFINITY,
@@ -423,6 +432,47 @@ impl SoundMap {
     /// Whether `id` was ever given to a source.
     pub fn has_given(&self, id: u64) -> bool {
         id != 0 && id < self.next_id
+    }
+
+    /// Every source, live and remembered, as it survives a restart, and the next id.
+    pub fn export(&self) -> (Vec<SourceRecord>, u64) {
+        let live = self.sources.iter().filter_map(|s| {
+            let e = s.tracker.estimate()?;
+            Some(SourceRecord {
+                id: s.id,
+                position_in_map: e.position_in_map,
+                covariance: e.position_covariance(),
+                first_heard: s.first_heard,
+                last_heard: s.last_heard,
+            })
+        });
+        let remembered = self.remembered.iter().map(|r| SourceRecord {
+            id: r.id,
+            position_in_map: r.position_in_map,
+            covariance: r.covariance,
+            first_heard: r.first_heard,
+            last_heard: r.last_heard,
+        });
+        (live.chain(remembered).collect(), self.next_id)
+    }
+
+    /// After a restart: every recorded source is remembered (a source born
+    /// within `reuse_radius_m` of one takes back its id), and ids start at
+    /// `next_id` at least.
+    pub fn restore(&mut self, records: &[SourceRecord], next_id: u64) {
+        self.next_id = self.next_id.max(next_id).max(records.iter().map(|r| r.id + 1).max().unwrap_or(1));
+        for r in records {
+            if self.remembered.iter().any(|m| m.id == r.id) {
+                continue;
+            }
+            self.remembered.push(Remembered {
+                id: r.id,
+                first_heard: r.first_heard,
+                position_in_map: r.position_in_map,
+                last_heard: r.last_heard,
+                covariance: r.covariance,
+            });
+        }
     }
 
     /// Lost sources still remembered for their ids: (id, last position, first heard, last heard).

@@ -48,6 +48,8 @@ pub struct Tracking {
     /// DoAs not yet applied, at most `max_doa_rate_hz` per robot.
     queue: DoaQueue<Ray>,
     counters: TrackingCounters,
+    /// Source ids published for the tracks (kept across restarts).
+    pub ids: super::source_ids::SourceIds,
 }
 
 impl Tracking {
@@ -57,6 +59,7 @@ impl Tracking {
             tracker: config.enabled.then(|| SourceTracker::new(config.clone())),
             queue: DoaQueue::new(config.max_doa_rate_hz),
             counters: TrackingCounters::default(),
+            ids: Default::default(),
         }
     }
 
@@ -99,6 +102,7 @@ impl Tracking {
         let outcome = tracker.initialize_from_triangulation(stamp, triangulation);
         if let InitOutcome::Started { track_id } = outcome {
             self.counters.tracks_started += 1;
+            self.ids.started(track_id, triangulation.solution().map(|s| s.source_in_map), stamp);
             tracing::debug!(track_id, "source track started from a triangulation");
         }
         Some(outcome)
@@ -129,9 +133,14 @@ impl Tracking {
         self.tracker.as_ref()?.predict_to(stamp)
     }
 
-    /// Id of the live (not lost) track, if any.
+    /// The track's newest estimate, lost or not.
+    pub fn track_estimate(&self) -> Option<TrackEstimate> {
+        self.tracker.as_ref()?.estimate()
+    }
+
+    /// Source id of the live (not lost) track, if any.
     pub fn live_track_id(&self) -> Option<u64> {
         let t = self.tracker.as_ref().filter(|t| !t.needs_track())?;
-        t.estimate().map(|e| e.track_id)
+        t.estimate().map(|e| self.ids.source_of(e.track_id).unwrap_or(e.track_id))
     }
 }

@@ -121,8 +121,10 @@ pub struct Actor {
     streams: HashMap<ConnId, Stream>,
     estimates: broadcast::Sender<Arc<wire::SourceEstimate>>,
     sink: Option<mpsc::UnboundedSender<Arc<wire::SourceEstimate>>>,
-    /// Lines of accepted observations (`output.observations_jsonl`).
-    observation_log: Option<mpsc::UnboundedSender<String>>,
+    /// Lines of accepted observations (`output.observations_jsonl`), written before their acknowledgements.
+    observation_log: Option<super::sink::LineFile>,
+    /// Snapshots for the state store, bound counters, rate-limited warnings.
+    upkeep: super::state_upkeep::Upkeep,
     metrics: Arc<Metrics>,
     /// Receipt times of observations waiting for an estimate.
     receipts: Vec<Instant>,
@@ -152,6 +154,12 @@ impl Actor {
             estimates,
             sink,
             observation_log: None,
+            upkeep: super::state_upkeep::Upkeep::new(
+                None,
+                Duration::from_secs(1),
+                metrics.clone(),
+                Arc::new(super::ratelog::RateLog::new(Duration::from_secs(10))),
+            ),
             metrics,
             receipts: Vec::new(),
             planner_logged: None,
@@ -159,8 +167,14 @@ impl Actor {
     }
 
     /// Also writes every accepted observation as a line to `log`.
-    pub fn with_observation_log(mut self, log: Option<mpsc::UnboundedSender<String>>) -> Self {
+    pub fn with_observation_log(mut self, log: Option<super::sink::LineFile>) -> Self {
         self.observation_log = log;
+        self
+    }
+
+    /// Writes snapshots, counts bounds and rate-limits warnings with `upkeep`.
+    pub fn with_upkeep(mut self, upkeep: super::state_upkeep::Upkeep) -> Self {
+        self.upkeep = upkeep;
         self
     }
 
@@ -188,7 +202,15 @@ impl Actor {
             }
             self.publish(now);
             self.dispatch();
+            // Acknowledged observations are in the log first.
+            if let Some(log) = self.observation_log.as_mut() {
+                log.flush();
+            }
             self.acknowledge();
+            self.upkeep.after_batch(&self.coordinator, now);
+            if stopping {
+                self.upkeep.finish(&self.coordinator, now);
+            }
         }
     }
 
@@ -215,7 +237,12 @@ impl Actor {
         if let Some(s) = self.streams.get(&conn)
             && let Err(e) = s.outbound.try_send(msg)
         {
-            tracing::warn!(conn, "outbound queue of stream full or closed: {e}");
+            super::metrics::LimitCounters::bump(&self.metrics.limits.outbound_dropped);
+            crate::warn_limited!(
+                self.upkeep.ratelog,
+                "outbound_full",
+                "stream {conn}: outbound queue full or closed: {e}"
+            );
         }
     }
 
@@ -251,8 +278,8 @@ impl Actor {
                 match self.coordinator.observe(now, conn, obs) {
                     Ok(()) => {
                         self.receipts.push(received);
-                        if let (Some(log), Some(line)) = (&self.observation_log, line) {
-                            let _ = log.send(line);
+                        if let (Some(log), Some(line)) = (self.observation_log.as_mut(), line) {
+                            log.push(&line);
                         }
                     }
                     Err(e) => self.send(conn, to_stream_error(&e, seq)),
@@ -293,7 +320,8 @@ impl Actor {
                 self.streams.remove(&conn);
             }
             Request::GetState { reply } => {
-                let _ = reply.send(self.snapshot(now));
+                let max = self.coordinator.config().server.max_state_entries;
+                let _ = reply.send(self.upkeep.bound_state(self.snapshot(now), max));
             }
             Request::SetFocus { source_id, reply } => {
                 let result = self.coordinator.set_focus(source_id);

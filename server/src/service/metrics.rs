@@ -2,6 +2,7 @@
 //! the publication of the first estimate that used it.
 
 use std::sync::Mutex;
+use std::sync::atomic::{AtomicU64, Ordering};
 use std::time::Duration;
 
 /// A log-bucketed latency histogram: 1 µs resolution below 64 µs, then
@@ -83,6 +84,72 @@ impl LatencyHistogram {
 pub struct Metrics {
     /// Receipt → publication latency of observations that led to an estimate.
     pub latency: Mutex<LatencyHistogram>,
+    /// How often each resource bound (`[server]`) was hit, and the state store's work.
+    pub limits: LimitCounters,
+}
+
+/// Counters of the resource bounds and of the state store (monotonic since start).
+#[derive(Debug, Default)]
+pub struct LimitCounters {
+    /// Connections closed at accept: `server.max_connections` reached.
+    pub connections_refused_total: AtomicU64,
+    /// Connections closed at accept: `server.max_connections_per_peer` reached.
+    pub connections_refused_peer: AtomicU64,
+    /// Connections closed after `server.idle_timeout_ms` without a byte read.
+    pub connections_idle_closed: AtomicU64,
+    /// Errors of the listening socket's accept (e.g. out of descriptors).
+    pub accept_errors: AtomicU64,
+    /// Robot streams refused: `server.max_robot_streams` open.
+    pub robot_streams_refused: AtomicU64,
+    /// Robot streams closed for sending no hello within `server.hello_timeout_ms`.
+    pub hello_timeouts: AtomicU64,
+    /// Observations rejected over `server.max_observation_rate_hz`.
+    pub observations_rate_limited: AtomicU64,
+    /// Observations dropped from a robot's history over `server.max_history_per_robot`.
+    pub history_trimmed: AtomicU64,
+    /// Robots forgotten: disconnected longer than `server.robot_retention_s`, or replaced at `server.max_robots`.
+    pub robots_forgotten: AtomicU64,
+    /// Hellos refused: `server.max_robots` robots known and all connected.
+    pub robots_refused: AtomicU64,
+    /// `GetState` answers that left robots or sources out (`server.max_state_entries`).
+    pub state_truncated: AtomicU64,
+    /// Messages not queued to a robot whose outbound queue was full or closed.
+    pub outbound_dropped: AtomicU64,
+    /// Snapshots written to the state store.
+    pub state_writes: AtomicU64,
+    /// Snapshots the state store failed to write.
+    pub state_write_errors: AtomicU64,
+    /// Microseconds spent writing snapshots (the writer thread's work).
+    pub state_write_us: AtomicU64,
+}
+
+impl LimitCounters {
+    /// Adds one to `counter`.
+    pub fn bump(counter: &AtomicU64) {
+        counter.fetch_add(1, Ordering::Relaxed);
+    }
+
+    /// The counters by name, for export.
+    pub fn snapshot(&self) -> Vec<(&'static str, u64)> {
+        let get = |c: &AtomicU64| c.load(Ordering::Relaxed);
+        vec![
+            ("connections_refused_total", get(&self.connections_refused_total)),
+            ("connections_refused_peer", get(&self.connections_refused_peer)),
+            ("connections_idle_closed", get(&self.connections_idle_closed)),
+            ("accept_errors", get(&self.accept_errors)),
+            ("robot_streams_refused", get(&self.robot_streams_refused)),
+            ("hello_timeouts", get(&self.hello_timeouts)),
+            ("observations_rate_limited", get(&self.observations_rate_limited)),
+            ("history_trimmed", get(&self.history_trimmed)),
+            ("robots_forgotten", get(&self.robots_forgotten)),
+            ("robots_refused", get(&self.robots_refused)),
+            ("state_truncated", get(&self.state_truncated)),
+            ("outbound_dropped", get(&self.outbound_dropped)),
+            ("state_writes", get(&self.state_writes)),
+            ("state_write_errors", get(&self.state_write_errors)),
+            ("state_write_us", get(&self.state_write_us)),
+        ]
+    }
 }
 
 impl Metrics {

@@ -5,10 +5,13 @@
 pub mod actor;
 pub mod auth;
 pub mod convert;
+pub mod limits;
 pub mod metrics;
 pub mod monitoring;
+pub mod ratelog;
 pub mod robot_link;
 pub mod sink;
+pub mod state_upkeep;
 pub mod status;
 
 use std::net::SocketAddr;
@@ -50,7 +53,6 @@ pub struct RunningCoordinator {
     actor: Option<std::thread::JoinHandle<()>>,
     ticker: Option<JoinHandle<()>>,
     sink: Option<std::thread::JoinHandle<()>>,
-    observation_sink: Option<std::thread::JoinHandle<()>>,
 }
 
 impl RunningCoordinator {
@@ -81,9 +83,6 @@ impl RunningCoordinator {
         let _ = self.requests.send(actor::Request::Stop).await;
         if let Some(actor) = self.actor.take() {
             let _ = tokio::task::spawn_blocking(move || actor.join()).await;
-        }
-        if let Some(sink) = self.observation_sink.take() {
-            let _ = tokio::task::spawn_blocking(move || sink.join()).await;
         }
         if let Some(sink) = self.sink.take() {
             let _ = tokio::task::spawn_blocking(move || sink.join()).await;
@@ -120,7 +119,7 @@ pub async fn start(
     listener: TcpListener,
 ) -> Result<RunningCoordinator, ServerError> {
     // Validated before anything starts.
-    let coordinator = Coordinator::new(config.clone())?;
+    let mut coordinator = Coordinator::new(config.clone())?;
     let tls = crate::tls::server_config(&config.tls)?;
     let authenticator = auth::Authenticator::new(&config.auth, &config.tls);
     log_access(&config, tls.is_some());
@@ -129,22 +128,22 @@ pub async fn start(
     let (requests, requests_rx) = mpsc::channel(REQUEST_CAPACITY);
     let (estimates, _) = broadcast::channel(WATCH_CAPACITY);
     let metrics = Arc::new(Metrics::default());
+    let log_interval = std::time::Duration::from_secs_f64(config.server.log_interval_s);
+    let ratelog = Arc::new(ratelog::RateLog::new(log_interval));
+    let (upkeep, state_word) =
+        state_upkeep::open_state(&config, &mut coordinator, clock.now(), metrics.clone(), ratelog.clone())?;
+    let marker = sink::restart_marker(clock.now().as_ns(), state_word, coordinator.next_source_id());
     let (sink_tx, sink) = match &config.output.estimates_jsonl {
         Some(path) => {
-            let (tx, handle) = sink::spawn_jsonl_sink(path.clone())?;
+            let (tx, handle) = sink::spawn_jsonl_sink(path.clone(), Some(marker))?;
             (Some(tx), Some(handle))
         }
         None => (None, None),
     };
-    let (observations_tx, observation_sink) = match &config.output.observations_jsonl {
-        Some(path) => {
-            let (tx, handle) = sink::spawn_lines_sink(path.clone(), "observations-jsonl")?;
-            (Some(tx), Some(handle))
-        }
-        None => (None, None),
-    };
+    let observation_log = config.output.observations_jsonl.as_deref().map(sink::LineFile::open).transpose()?;
     let (stopping, stop_rx) = tokio::sync::watch::channel(false);
-    let link = robot_link::RobotLinkService::new(&config, requests.clone(), clock.clone(), stop_rx.clone());
+    let link = robot_link::RobotLinkService::new(&config, requests.clone(), clock.clone(), stop_rx.clone())
+        .with_bounds(&config.server, metrics.clone(), ratelog.clone());
     let monitoring = monitoring::MonitoringService::new(requests.clone(), estimates.clone(), stop_rx.clone())
         .with_auth(authenticator);
     let ticker = match config.liveness.tick_ms {
@@ -154,7 +153,8 @@ pub async fn start(
         }
     };
     let actor = actor::Actor::new(coordinator, clock, estimates.clone(), sink_tx, metrics.clone())
-        .with_observation_log(observations_tx);
+        .with_observation_log(observation_log)
+        .with_upkeep(upkeep);
     let actor = std::thread::Builder::new()
         .name("coordinator".into())
         .spawn(move || actor.run(requests_rx))
@@ -163,9 +163,9 @@ pub async fn start(
     health_reporter.set_serving::<RobotLinkServer<robot_link::RobotLinkService>>().await;
     health_reporter.set_serving::<MonitoringServer<monitoring::MonitoringService>>().await;
     let (shutdown_tx, shutdown_rx) = oneshot::channel::<()>();
-    let incoming = tonic::transport::server::TcpIncoming::from(listener).with_nodelay(Some(true));
+    let incoming = limits::bounded_incoming(listener, &config.server, metrics.clone(), ratelog.clone());
     let server = tokio::spawn(
-        server_builder(tls)?
+        limits::serving_options(server_builder(tls)?, &config.server)
             .add_service(health)
             .add_service(RobotLinkServer::new(link))
             .add_service(MonitoringServer::new(monitoring))
@@ -184,7 +184,6 @@ pub async fn start(
         actor: Some(actor),
         ticker,
         sink,
-        observation_sink,
     })
 }
 

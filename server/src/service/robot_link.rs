@@ -13,11 +13,15 @@ use tonic::{Request, Response, Status, Streaming};
 
 use super::actor;
 use super::auth::Authenticator;
+use super::limits::LinkBounds;
+use super::metrics::Metrics;
+use super::ratelog::RateLog;
 use super::status::{self, to_status};
 use crate::clock::Clock;
 use crate::config::CoordinatorConfig;
 use crate::coordinator::ConnId;
 use crate::error::ServerError;
+use crate::resources::ServerConfig;
 
 /// Messages queued toward one robot before the stream counts as not reading.
 const OUTBOUND_CAPACITY: usize = 4096;
@@ -30,6 +34,7 @@ pub struct RobotLinkService {
     auth: Authenticator,
     limits: Limits,
     stopping: tokio::sync::watch::Receiver<bool>,
+    bounds: LinkBounds,
 }
 
 impl RobotLinkService {
@@ -48,7 +53,18 @@ impl RobotLinkService {
             quaternion_tolerance: config.limits.quaternion_tolerance,
         };
         let auth = Authenticator::new(&config.auth, &config.tls);
-        RobotLinkService { requests, clock, auth, limits, stopping }
+        RobotLinkService { requests, clock, auth, limits, stopping, bounds: LinkBounds::new(&config.server) }
+    }
+
+    /// Counts and logs the bounds of `[server]` in `metrics` and through `ratelog`.
+    pub fn with_bounds(
+        mut self,
+        config: &ServerConfig,
+        metrics: Arc<Metrics>,
+        ratelog: Arc<RateLog>,
+    ) -> Self {
+        self.bounds = LinkBounds::shared(config, metrics, ratelog);
+        self
     }
 
     fn limits(&self) -> Limits {
@@ -67,8 +83,10 @@ impl RobotLink for RobotLinkService {
         request: Request<Streaming<wire::RobotMessage>>,
     ) -> Result<Response<Self::ConnectStream>, Status> {
         let principal = self.auth.identify(&request).map_err(|e| to_status(&e))?;
+        let slot = self.bounds.take_slot()?;
         let mut inbound = request.into_inner();
-        let first = inbound.message().await.map_err(|s| status::inbound_failed(&s))?;
+        let first_message = self.bounds.before_hello(inbound.message());
+        let first = first_message.await?.map_err(|s| status::inbound_failed(&s))?;
         let first = first.ok_or_else(status::closed_before_hello)?;
         let hello = match &first.msg {
             Some(Msg::Hello(h)) => Hello::from_wire(h, &self.limits()).map_err(|e| to_status(&e.into()))?,
@@ -79,13 +97,14 @@ impl RobotLink for RobotLinkService {
         let (outbound, rx) = mpsc::channel(OUTBOUND_CAPACITY);
         let (reply, answer) = oneshot::channel();
         let stream_hello = hello.clone();
+        let svc = RobotLinkService { bounds: self.bounds.holding(slot), ..self.clone() };
         self.requests
             .send(actor::Request::Connect { hello, identity, outbound, reply })
             .await
             .map_err(|_| status::shutting_down())?;
         let welcome = answer.await.map_err(|_| status::shutting_down())?.map_err(|e| to_status(&e))?;
         let ending = StreamEnd::default();
-        tokio::spawn(read_stream(inbound, welcome.conn, stream_hello, self.clone(), ending.clone()));
+        tokio::spawn(read_stream(inbound, welcome.conn, stream_hello, svc, ending.clone()));
         // Queued messages go out first; on shutdown the stream ends with
         // UNAVAILABLE so that the robot reconnects later.
         let state = (rx, Some(self.stopping.clone()), ending);
@@ -143,6 +162,7 @@ async fn read_stream(
     ending: StreamEnd,
 ) {
     let mut stop = svc.stopping.clone();
+    let mut bucket = svc.bounds.bucket();
     loop {
         let next = tokio::select! {
             m = inbound.message() => m,
@@ -165,6 +185,14 @@ async fn read_stream(
             Some(Msg::Observation(o)) => Some(o.sequence),
             _ => None,
         };
+        if sequence.is_some()
+            && let Err(error) = svc.bounds.admit_observation(&mut bucket, conn)
+        {
+            if svc.requests.send(actor::Request::Rejected { conn, sequence, error }).await.is_err() {
+                return;
+            }
+            continue;
+        }
         let request = match RobotInput::from_wire(&msg, &svc.limits()) {
             Ok(RobotInput::Observation(obs)) => match obs.check_against(&hello) {
                 Ok(()) => actor::Request::Observation { conn, obs, received },

@@ -20,6 +20,7 @@ pub fn code(e: &ServerError) -> Code {
         ServerError::IdentityMismatch { .. } | ServerError::PermissionDenied(_) => Code::PermissionDenied,
         ServerError::Config { .. } | ServerError::Io { .. } => Code::Internal,
         ServerError::ShuttingDown => Code::Unavailable,
+        ServerError::Exhausted(_) => Code::ResourceExhausted,
     }
 }
 
