@@ -107,7 +107,7 @@ impl CrossCorrelator {
             cc: vec![0.0; pairs.len() * stride],
             lin: vec![[0.0; 2]; pairs.len() * stride],
             cc_max: vec![0.0; pairs.len() * stride],
-            tmp: vec![0.0; 2 * stride],
+            tmp: vec![0.0; 2 * (stride + 2 * window.iter().copied().max().unwrap_or(0))],
             window,
             pairs,
         }
@@ -122,15 +122,18 @@ impl CrossCorrelator {
             let src = &spectra[i * bins + self.band.lo..i * bins + self.band.hi];
             let re = &mut self.phat_re[i * padded..i * padded + k];
             let im = &mut self.phat_im[i * padded..i * padded + k];
-            let mut energy = 0.0;
+            let mut energy = 0u32;
+            // Branch-free, so that it vectorizes: silent bins select 0.
             for ((x, r), m) in src.iter().zip(re.iter_mut()).zip(im.iter_mut()) {
                 let p = x.re * x.re + x.im * x.im;
-                let inv = if p > 1e-30 { 1.0 / p.sqrt() } else { 0.0 };
+                let live = p > 1e-30;
+                let inv = 1.0 / p.max(1e-30).sqrt();
+                let inv = if live { inv } else { 0.0 };
                 *r = x.re * inv;
                 *m = x.im * inv;
-                energy += if p > 1e-30 { 1.0 } else { 0.0 };
+                energy += live as u32;
             }
-            self.phat_energy[i] = energy;
+            self.phat_energy[i] = energy as f32;
         }
     }
 
@@ -170,29 +173,22 @@ impl CrossCorrelator {
             // Bin kb = lo + q is pos[lo + q]; bin N − kb is neg[n/2 − 1 − kb].
             let pos = &mut pos[lo..lo + k];
             let neg = &mut neg[n / 2 - lo - k..n / 2 - lo];
-            for base in (0..padded).step_by(LANES) {
-                let lanes = |v: &[f32]| -> [f32; LANES] {
-                    v[base..base + LANES].try_into().expect("padded to LANES")
-                };
-                let (ar, ai, br, bi) = (lanes(ar), lanes(ai), lanes(br), lanes(bi));
-                let (cr, ci, dr, di) = (lanes(cr), lanes(ci), lanes(dr), lanes(di));
-                // C = X̃ᵢ · conj(X̃ⱼ) for both pairs; Z = C₁ + jC₂ and its mirror C₁* + jC₂*.
-                let mut zp = [[0f32; LANES]; 2];
-                let mut zn = [[0f32; LANES]; 2];
-                for l in 0..LANES {
-                    let (c1r, c1i) = (ar[l] * br[l] + ai[l] * bi[l], ai[l] * br[l] - ar[l] * bi[l]);
-                    let (c2r, c2i) =
-                        (w2 * (cr[l] * dr[l] + ci[l] * di[l]), w2 * (ci[l] * dr[l] - cr[l] * di[l]));
-                    zp[0][l] = c1r - c2i;
-                    zp[1][l] = c1i + c2r;
-                    zn[0][l] = c1r + c2i;
-                    zn[1][l] = c2r - c1i;
-                }
-                for l in 0..LANES.min(k.saturating_sub(base)) {
-                    let q = base + l;
-                    pos[q] = Complex::new(zp[0][l], zp[1][l]);
-                    neg[k - 1 - q] = Complex::new(zn[0][l], zn[1][l]);
-                }
+            // C = X̃ᵢ · conj(X̃ⱼ) for both pairs; Z = C₁ + jC₂ at bin k and its
+            // mirror C₁* + jC₂* at N − k (stored in reverse order in `neg`).
+            let (ar, ai, br, bi) = (&ar[..k], &ai[..k], &br[..k], &bi[..k]);
+            let (cr, ci, dr, di) = (&cr[..k], &ci[..k], &dr[..k], &di[..k]);
+            let cross = |q: usize| {
+                let (c1r, c1i) = (ar[q] * br[q] + ai[q] * bi[q], ai[q] * br[q] - ar[q] * bi[q]);
+                let (c2r, c2i) = (cr[q] * dr[q] + ci[q] * di[q], ci[q] * dr[q] - cr[q] * di[q]);
+                (c1r, c1i, w2 * c2r, w2 * c2i)
+            };
+            for (q, z) in pos.iter_mut().enumerate() {
+                let (c1r, c1i, c2r, c2i) = cross(q);
+                *z = Complex::new(c1r - c2i, c1i + c2r);
+            }
+            for (q, z) in neg.iter_mut().rev().enumerate() {
+                let (c1r, c1i, c2r, c2i) = cross(q);
+                *z = Complex::new(c1r + c2i, c2r - c1i);
             }
             self.ifft.process_with_scratch(&mut self.spec, &mut self.scratch);
             for (slot, p) in [first, first + 1].into_iter().enumerate() {
@@ -230,6 +226,11 @@ impl CrossCorrelator {
     }
 
     /// `cc_max[p][n] = max(cc[p][n−w..=n+w])` (clipped at the stored lags).
+    ///
+    /// The row is padded with `w` entries of −∞ on each side, so that one
+    /// formula holds everywhere: after ⌊log₂(2w+1)⌋ doubling passes
+    /// `a[n] = max(pad[n..n+span])`, and the window `[n−w, n+w]` of the row is
+    /// `[n, n+2w]` of the padding, the union of two overlapping spans.
     pub(super) fn sliding_max(&mut self, p: usize) {
         let s = self.stride;
         let w = self.window[p];
@@ -239,34 +240,31 @@ impl CrossCorrelator {
             dst.copy_from_slice(src);
             return;
         }
-        // Doubling: after the step of `span`, a[n] = max(src[n..n+2·span]).
-        let (mut a, mut b) = self.tmp.split_at_mut(s);
-        a.copy_from_slice(src);
+        let len = s + 2 * w;
+        let half = self.tmp.len() / 2;
+        let (a, b) = self.tmp.split_at_mut(half);
+        let (mut a, mut b) = (&mut a[..len], &mut b[..len]);
+        a[..w].fill(f32::NEG_INFINITY);
+        a[w..w + s].copy_from_slice(src);
+        a[w + s..].fill(f32::NEG_INFINITY);
         let width = 2 * w + 1;
         let mut span = 1;
         while span * 2 <= width {
             for ((o, &x), &y) in b.iter_mut().zip(a.iter()).zip(&a[span..]) {
                 *o = if x > y { x } else { y };
             }
-            b[s - span..].copy_from_slice(&a[s - span..]);
+            b[len - span..].copy_from_slice(&a[len - span..]);
             std::mem::swap(&mut a, &mut b);
             span *= 2;
         }
-        // Interior: max over [n−w, n+w] = max(a[n−w], a[n+w+1−span]).
-        for q in w..s.saturating_sub(w) {
-            let (x, y) = (a[q - w], a[q + w + 1 - span]);
-            dst[q] = if x > y { x } else { y };
-        }
-        // Edges (window clipped by the ends of the row): directly.
-        for q in (0..w.min(s)).chain(s.saturating_sub(w).max(w)..s) {
-            let (lo, hi) = (q.saturating_sub(w), (q + w).min(s - 1));
-            dst[q] = src[lo..=hi].iter().fold(f32::NEG_INFINITY, |m, &v| if v > m { v } else { m });
+        for ((o, &x), &y) in dst.iter_mut().zip(a.iter()).zip(&a[width - span..]) {
+            *o = if x > y { x } else { y };
         }
     }
 
     /// Zeroes pair `p`'s correlation around fractional lag index `t`
     /// (`t = lag + R`) over `±half` lags, and updates its interpolation
-    /// table and sliding maxima there.
+    /// table and sliding maxima.
     pub(super) fn suppress(&mut self, p: usize, t: f32, half: usize) {
         let s = self.stride;
         let c = t.floor().max(0.0) as usize;
@@ -279,18 +277,9 @@ impl CrossCorrelator {
             let next = if q + 1 < s { row[q + 1] } else { row[q] };
             self.lin[p * s + q] = [row[q], next - row[q]];
         }
-        // Sliding maxima over windows that contain a zeroed lag (exact bounds
-        // matter: stale ones would send the next search back to this peak).
-        let w = self.window[p];
-        let (a, b) = (lo.saturating_sub(w), (hi + w).min(s - 1));
-        for q in a..=b {
-            let (l, h) = (q.saturating_sub(w), (q + w).min(s - 1));
-            let mut m = f32::NEG_INFINITY;
-            for &v in &row[l..=h] {
-                m = if v > m { v } else { m };
-            }
-            self.cc_max[p * s + q] = m;
-        }
+        // Sliding maxima: exact bounds matter (stale ones would send the next
+        // search back to this peak); the whole row costs a few vector passes.
+        self.sliding_max(p);
     }
 }
 
@@ -328,7 +317,7 @@ mod tests {
     #[test]
     fn sliding_max_matches_brute_force() {
         let n = 64;
-        let mut c = CrossCorrelator::new(2, n, Band { lo: 1, hi: 32 }, 12, vec![3]);
+        let mut c = CrossCorrelator::new(2, n, Band { lo: 1, hi: 32 }, 12, vec![7]);
         let s = c.stride;
         for q in 0..s {
             c.cc[q] = ((q * 7919) % 23) as f32 - 11.0;
