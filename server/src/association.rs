@@ -18,6 +18,20 @@
 //! 1.2 to its own source and 0.9 to another costs 1.2 − 4.6 = −3.4 against
 //! 0.9 + 4.6 = 5.5: it stays with its source unless it leaves its gate.
 //!
+//! **Silent sources.** Talkers pause, and a source not heard for a while
+//! (0.5 s) is predicted with a covariance that grows with the silence (its
+//! filter allows it to walk away). A robot-local track not yet claimed by any
+//! source is then as likely a new source as the silent one resuming, so it
+//! costs γ/2 more to give to a silent source: it must pass within χ² ≤ γ/2
+//! (≈ 2.1 σ at 0.99) rather than γ (3 σ). Worked numbers: a seated talker
+//! stops; 1 s later a second talker 1.5 m away starts, 23° away as one robot
+//! sees them at 2.5 m (a 1 m miss). The silent source's horizontal σ has
+//! grown to ≈ 0.4 m, so that robot's new track has NIS ≈ 1² / (0.4² + 0.09²) ≈ 6
+//! — inside γ = 9.21, and without the prior it would drag the silent
+//! source onto the new talker; with it, 6 + 4.6 > γ, the ray stays free and
+//! the new talker is born. The first talker resuming in place gives NIS ≈ 1:
+//! 1 + 4.6 < γ, it is still recognized.
+//!
 //! **New sources (births).** Rays no source claims are paired across robots:
 //! every pair of two robots' unclaimed rays is triangulated, and a pair is a
 //! candidate when its triangulation is usable: finite, in front of both
