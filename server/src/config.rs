@@ -50,6 +50,8 @@ pub struct CoordinatorConfig {
     pub server: ServerConfig,
     /// Where state survives a restart (`[state]`, see [`crate::resources`]).
     pub state: StateConfig,
+    /// The Prometheus endpoint (`[metrics]`).
+    pub metrics: MetricsConfig,
 }
 
 /// Active positioning: whether the coordinator commands the robots, the θ band
@@ -154,6 +156,16 @@ pub struct OutputConfig {
     /// "doas": [{"track_id", "x", "y", "z", "activity", "angular_sigma_rad"}]}`
     /// (metres; DoAs as unit vectors in the array frame; σ in rad or null).
     pub observations_jsonl: Option<PathBuf>,
+}
+
+/// `[metrics]`: the Prometheus endpoint.
+#[derive(Clone, Debug, Default, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct MetricsConfig {
+    /// Serve Prometheus metrics (OpenMetrics text) at `http://ADDR/metrics`,
+    /// e.g. `127.0.0.1:9464`. Plain HTTP without credentials on its own port:
+    /// counters and states only, no positions. Default: off.
+    pub listen: Option<SocketAddr>,
 }
 
 /// `[sources]`: how many sources are followed and how they are born and remembered.
@@ -304,6 +316,7 @@ impl Default for CoordinatorConfig {
             sources: SourcesConfig::default(),
             server: ServerConfig::default(),
             state: StateConfig::default(),
+            metrics: MetricsConfig::default(),
         }
     }
 }

@@ -1,7 +1,7 @@
 //! `soundmap-coordinator`: the coordinator service.
 //!
 //! ```text
-//! soundmap-coordinator [--config FILE] [--listen ADDR] [--estimates-jsonl FILE]
+//! soundmap-coordinator [--config FILE] [--listen ADDR] [--estimates-jsonl FILE] [--metrics ADDR]
 //! ```
 
 use std::path::PathBuf;
@@ -32,6 +32,9 @@ struct Args {
     /// in DIR (overrides `state.dir`; the systemd unit gives its StateDirectory).
     #[arg(long, value_name = "DIR")]
     state_dir: Option<PathBuf>,
+    /// Serve Prometheus metrics at http://ADDR/metrics (overrides `metrics.listen`), e.g. 127.0.0.1:9464.
+    #[arg(long, value_name = "ADDR")]
+    metrics: Option<std::net::SocketAddr>,
     /// Check the configuration and exit: every key, the TLS files, that the
     /// output files are writable and that the listen address can be bound.
     #[arg(long)]
@@ -62,6 +65,9 @@ async fn main() -> anyhow::Result<()> {
     }
     if let Some(dir) = args.state_dir {
         config.state.dir = Some(dir);
+    }
+    if let Some(addr) = args.metrics {
+        config.metrics.listen = Some(addr);
     }
     if args.check {
         check_environment(&config)?;

@@ -9,12 +9,13 @@ use std::collections::HashMap;
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
-use soundmap_proto::{CommandAck, CommandProgress, Hello, Observation, RobotId, Stamp, wire};
+use soundmap_proto::{CommandAck, CommandProgress, CommandState, Hello, Observation, RobotId, Stamp, wire};
 use tokio::sync::{broadcast, mpsc, oneshot};
 
 use super::convert::estimate_to_wire;
 use super::metrics::Metrics;
 use super::status::to_stream_error;
+use super::telemetry::{PlannerLabel, RejectLabel, RobotLabel, StateLabel, reject_reason};
 use crate::clock::Clock;
 use crate::coordinator::{
     ConnId, Coordinator, Outbound, PlanKind, PlannerStatus, PositioningSettings, PositioningUpdate, Welcome,
@@ -130,6 +131,8 @@ pub struct Actor {
     receipts: Vec<Instant>,
     /// The planner decision last logged: (kind, reason key, when).
     planner_logged: Option<(PlanKind, &'static str, Instant)>,
+    /// The planner decision last counted in the metrics: (decided, kind, reason key).
+    planner_counted: Option<(Stamp, PlanKind, &'static str)>,
 }
 
 impl std::fmt::Debug for Actor {
@@ -163,6 +166,7 @@ impl Actor {
             metrics,
             receipts: Vec::new(),
             planner_logged: None,
+            planner_counted: None,
         }
     }
 
@@ -193,6 +197,7 @@ impl Actor {
                 }
             }
             let now = self.clock.now();
+            let started = Instant::now();
             for r in batch.drain(..) {
                 match r {
                     Request::Stop => stopping = true,
@@ -211,6 +216,8 @@ impl Actor {
             if stopping {
                 self.upkeep.finish(&self.coordinator, now);
             }
+            self.metrics.telemetry.batch_seconds.observe(started.elapsed().as_secs_f64());
+            self.metrics.robot_streams.store(self.streams.len(), std::sync::atomic::Ordering::Relaxed);
         }
     }
 
@@ -275,19 +282,25 @@ impl Actor {
                     (Some(_), Some(id)) => Some(super::sink::observation_line(id.as_str(), &obs)),
                     _ => None,
                 };
+                let robot = self.robot_label(conn);
                 match self.coordinator.observe(now, conn, obs) {
                     Ok(()) => {
+                        self.metrics.telemetry.observations_accepted.get_or_create(&robot).inc();
                         self.receipts.push(received);
                         if let (Some(log), Some(line)) = (self.observation_log.as_mut(), line) {
                             log.push(&line);
                         }
                     }
-                    Err(e) => self.send(conn, to_stream_error(&e, seq)),
+                    Err(e) => {
+                        self.count_rejected(robot, &e);
+                        self.send(conn, to_stream_error(&e, seq));
+                    }
                 }
                 self.mark_ack(conn, seq);
             }
             Request::Rejected { conn, sequence, error } => {
                 if sequence.is_some() {
+                    self.count_rejected(self.robot_label(conn), &error);
                     self.coordinator.note_rejected(now, conn);
                 } else {
                     let _ = self.coordinator.heartbeat(now, conn);
@@ -303,11 +316,20 @@ impl Actor {
                 }
             }
             Request::CommandAck { conn, ack } => {
+                let state = if ack.accepted { "accepted" } else { "refused" };
+                self.metrics.telemetry.commands.get_or_create(&StateLabel { state }).inc();
                 if let Err(e) = self.coordinator.command_ack(now, conn, &ack) {
                     self.send(conn, to_stream_error(&e, 0));
                 }
             }
             Request::CommandProgress { conn, progress } => {
+                let state = match progress.state {
+                    CommandState::Executing => "executing",
+                    CommandState::Succeeded => "succeeded",
+                    CommandState::Failed => "failed",
+                    CommandState::Canceled => "canceled",
+                };
+                self.metrics.telemetry.commands.get_or_create(&StateLabel { state }).inc();
                 if let Err(e) = self.coordinator.command_progress(now, conn, &progress) {
                     self.send(conn, to_stream_error(&e, 0));
                 }
@@ -346,6 +368,16 @@ impl Actor {
         }
     }
 
+    /// The robot of a stream, as a metrics label (empty before its hello).
+    fn robot_label(&self, conn: ConnId) -> RobotLabel {
+        RobotLabel { robot: self.coordinator.robot_of(conn).map(|id| id.to_string()).unwrap_or_default() }
+    }
+
+    fn count_rejected(&self, robot: RobotLabel, error: &ServerError) {
+        let label = RejectLabel { robot: robot.robot, reason: reject_reason(error) };
+        self.metrics.telemetry.observations_rejected.get_or_create(&label).inc();
+    }
+
     fn mark_ack(&mut self, conn: ConnId, seq: u64) {
         if let Some(s) = self.streams.get_mut(&conn) {
             s.to_ack = Some(s.to_ack.map_or(seq, |a| a.max(seq)));
@@ -357,6 +389,7 @@ impl Actor {
         if estimates.is_empty() {
             return;
         }
+        self.metrics.telemetry.estimates_published.inc_by(estimates.len() as u64);
         for estimate in &estimates {
             let wire = Arc::new(estimate_to_wire(estimate));
             // No watcher is not an error.
@@ -369,7 +402,9 @@ impl Actor {
             let published = Instant::now();
             let mut h = self.metrics.latency.lock().unwrap_or_else(|p| p.into_inner());
             for r in self.receipts.drain(..) {
-                h.record(published.duration_since(r));
+                let latency = published.duration_since(r);
+                h.record(latency);
+                self.metrics.telemetry.estimate_latency.observe(latency.as_secs_f64());
             }
         }
     }
@@ -387,10 +422,12 @@ impl Actor {
                         "reposition: {}",
                         c.detail
                     );
+                    self.metrics.telemetry.commands.get_or_create(&StateLabel { state: "sent" }).inc();
                     wire::coordinator_message::Msg::Reposition(c.to_wire())
                 }
                 Outbound::Cancel { command_id, reason } => {
                     tracing::info!(robot = %out.robot_id, command_id, "cancel: {reason}");
+                    self.metrics.telemetry.commands.get_or_create(&StateLabel { state: "cancel_sent" }).inc();
                     wire::coordinator_message::Msg::Cancel(wire::CancelCommand { command_id, reason })
                 }
             };
@@ -403,6 +440,16 @@ impl Actor {
     /// most every [`PLANNER_LOG_PERIOD`].
     fn log_planner(&mut self) {
         let Some(s) = self.coordinator.planner_status() else { return };
+        if self.planner_counted != Some((s.decided, s.kind, s.key)) {
+            self.planner_counted = Some((s.decided, s.kind, s.key));
+            let outcome = match s.kind {
+                PlanKind::Planned => "planned",
+                PlanKind::Hold => "hold",
+                PlanKind::Infeasible => "infeasible",
+            };
+            let label = PlannerLabel { outcome, reason: s.key };
+            self.metrics.telemetry.planner_decisions.get_or_create(&label).inc();
+        }
         if s.kind == PlanKind::Planned {
             self.planner_logged = Some((s.kind, s.key, Instant::now()));
             return;

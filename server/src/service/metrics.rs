@@ -1,5 +1,11 @@
 //! Service metrics: counters and the latency from an observation's receipt to
 //! the publication of the first estimate that used it.
+//!
+//! Operators read them as Prometheus series ([`super::telemetry`], served at
+//! `/metrics` by [`super::metrics_http`]); the latency there is the
+//! `prometheus-client` histogram (coarse buckets, monotonic). [`LatencyHistogram`]
+//! stays for the benchmarks, which need quantiles at ~3 % resolution over a
+//! window they reset, which a Prometheus histogram cannot give back.
 
 use std::sync::Mutex;
 use std::sync::atomic::{AtomicU64, Ordering};
@@ -86,6 +92,10 @@ pub struct Metrics {
     pub latency: Mutex<LatencyHistogram>,
     /// How often each resource bound (`[server]`) was hit, and the state store's work.
     pub limits: LimitCounters,
+    /// The operators' series (`GET /metrics`, see [`super::telemetry`]).
+    pub telemetry: super::telemetry::Telemetry,
+    /// Robot streams open (kept by the coordinator task).
+    pub robot_streams: std::sync::atomic::AtomicUsize,
 }
 
 /// Counters of the resource bounds and of the state store (monotonic since start).
@@ -153,6 +163,11 @@ impl LimitCounters {
 }
 
 impl Metrics {
+    /// Robot streams open.
+    pub fn robot_streams(&self) -> usize {
+        self.robot_streams.load(std::sync::atomic::Ordering::Relaxed)
+    }
+
     /// A copy of the latency histogram, and resets it when `reset`.
     pub fn take_latency(&self, reset: bool) -> LatencyHistogram {
         let mut h = self.latency.lock().unwrap_or_else(|p| p.into_inner());

@@ -7,12 +7,14 @@ pub mod auth;
 pub mod convert;
 pub mod limits;
 pub mod metrics;
+pub mod metrics_http;
 pub mod monitoring;
 pub mod ratelog;
 pub mod robot_link;
 pub mod sink;
 pub mod state_upkeep;
 pub mod status;
+pub mod telemetry;
 
 use std::net::SocketAddr;
 use std::sync::Arc;
@@ -45,6 +47,8 @@ pub struct RunningCoordinator {
     pub local_addr: SocketAddr,
     /// Its metrics.
     pub metrics: Arc<Metrics>,
+    /// Where `GET /metrics` is served (`[metrics] listen`), when it is.
+    pub metrics_addr: Option<SocketAddr>,
     estimates: broadcast::Sender<Arc<wire::SourceEstimate>>,
     stopping: tokio::sync::watch::Sender<bool>,
     shutdown: Option<oneshot::Sender<()>>,
@@ -140,7 +144,8 @@ pub async fn start(
         }
         None => (None, None),
     };
-    let observation_log = config.output.observations_jsonl.as_deref().map(sink::LineFile::open).transpose()?;
+    let observation_log =
+        config.output.observations_jsonl.as_deref().map(sink::LineFile::open).transpose()?;
     let (stopping, stop_rx) = tokio::sync::watch::channel(false);
     let link = robot_link::RobotLinkService::new(&config, requests.clone(), clock.clone(), stop_rx.clone())
         .with_bounds(&config.server, metrics.clone(), ratelog.clone());
@@ -159,6 +164,12 @@ pub async fn start(
         .name("coordinator".into())
         .spawn(move || actor.run(requests_rx))
         .map_err(|source| ServerError::Io { path: "<coordinator thread>".into(), source })?;
+    let metrics_addr = match config.metrics.listen {
+        Some(addr) => Some(start_metrics(addr, &metrics, &requests, &estimates, stop_rx.clone()).await?),
+        None => None,
+    };
+    let reflection_v1 = reflection().build_v1().map_err(reflection_error)?;
+    let reflection_v1alpha = reflection().build_v1alpha().map_err(reflection_error)?;
     let (health_reporter, health) = tonic_health::server::health_reporter();
     health_reporter.set_serving::<RobotLinkServer<robot_link::RobotLinkService>>().await;
     health_reporter.set_serving::<MonitoringServer<monitoring::MonitoringService>>().await;
@@ -167,6 +178,8 @@ pub async fn start(
     let server = tokio::spawn(
         limits::serving_options(server_builder(tls)?, &config.server)
             .add_service(health)
+            .add_service(reflection_v1)
+            .add_service(reflection_v1alpha)
             .add_service(RobotLinkServer::new(link))
             .add_service(MonitoringServer::new(monitoring))
             .serve_with_incoming_shutdown(incoming, async {
@@ -175,6 +188,7 @@ pub async fn start(
     );
     Ok(RunningCoordinator {
         local_addr,
+        metrics_addr,
         metrics,
         estimates,
         stopping,
@@ -185,6 +199,41 @@ pub async fn start(
         ticker,
         sink,
     })
+}
+
+/// Binds `addr` and serves the Prometheus endpoint there until `stop`.
+async fn start_metrics(
+    addr: SocketAddr,
+    metrics: &Arc<Metrics>,
+    requests: &mpsc::Sender<actor::Request>,
+    estimates: &broadcast::Sender<Arc<wire::SourceEstimate>>,
+    stop: tokio::sync::watch::Receiver<bool>,
+) -> Result<SocketAddr, ServerError> {
+    let io = |source| ServerError::Io { path: format!("[metrics] listen {addr}").into(), source };
+    let listener = TcpListener::bind(addr).await.map_err(io)?;
+    let bound = listener.local_addr().map_err(io)?;
+    let endpoint = metrics_http::MetricsEndpoint {
+        metrics: metrics.clone(),
+        requests: requests.clone(),
+        estimates: estimates.clone(),
+    };
+    tokio::spawn(endpoint.serve(listener, stop));
+    tracing::info!("Prometheus metrics at http://{bound}/metrics");
+    Ok(bound)
+}
+
+/// gRPC server reflection (`grpc.reflection.v1` and `v1alpha`): every service
+/// served here (soundmap.v1, health, reflection itself) described from the
+/// descriptor sets compiled with the protos, so reflection clients (grpcurl,
+/// grpcui, Postman, `grpcio-reflection`) list and call them without the files.
+fn reflection() -> tonic_reflection::server::Builder<'static> {
+    tonic_reflection::server::Builder::configure()
+        .register_encoded_file_descriptor_set(soundmap_proto::FILE_DESCRIPTOR_SET)
+        .register_encoded_file_descriptor_set(tonic_health::pb::FILE_DESCRIPTOR_SET)
+}
+
+fn reflection_error(e: tonic_reflection::server::Error) -> ServerError {
+    ServerError::Io { path: "<reflection descriptors>".into(), source: std::io::Error::other(e) }
 }
 
 /// A gRPC server builder, with TLS when `[tls]` gives a certificate.
@@ -213,7 +262,9 @@ fn log_access(config: &CoordinatorConfig, tls: bool) {
             "authentication on: every call needs a credential"
         );
         if auth.operators.is_empty() && !mtls {
-            tracing::warn!("no [auth.operators]: Monitoring (GetState, WatchEstimates, control) refuses every call");
+            tracing::warn!(
+                "no [auth.operators]: Monitoring (GetState, WatchEstimates, control) refuses every call"
+            );
         }
     } else {
         tracing::warn!(tls, "no credentials configured: anyone who reaches the port may use every service");
