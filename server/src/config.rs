@@ -14,6 +14,7 @@ use crate::planner::{PlannerConfig, ThetaBand};
 pub use crate::resources::{ServerConfig, StateConfig};
 use crate::tracking::TrackerConfig;
 use crate::triangulation::{RobustLoss, TriangulationConfig};
+pub use crate::viz::{FoxgloveConfig, RecordConfig};
 
 /// The coordinator's configuration.
 #[derive(Clone, Debug, PartialEq, Deserialize)]
@@ -50,6 +51,10 @@ pub struct CoordinatorConfig {
     pub server: ServerConfig,
     /// Where state survives a restart (`[state]`, see [`crate::resources`]).
     pub state: StateConfig,
+    /// The Foxglove live view (`[foxglove]`, see [`crate::viz`]).
+    pub foxglove: FoxgloveConfig,
+    /// The MCAP recording (`[record]`, see [`crate::viz`]).
+    pub record: RecordConfig,
     /// The Prometheus endpoint (`[metrics]`).
     pub metrics: MetricsConfig,
 }
@@ -316,6 +321,8 @@ impl Default for CoordinatorConfig {
             sources: SourcesConfig::default(),
             server: ServerConfig::default(),
             state: StateConfig::default(),
+            foxglove: FoxgloveConfig::default(),
+            record: RecordConfig::default(),
             metrics: MetricsConfig::default(),
         }
     }
@@ -428,6 +435,7 @@ impl CoordinatorConfig {
         self.sources.validate().map_err(|e| invalid_key(path, e.within("sources")))?;
         self.server.validate().map_err(|e| invalid_key(path, e.within("server")))?;
         self.state.validate().map_err(|e| invalid_key(path, e.within("state")))?;
+        self.foxglove.validate().map_err(|e| invalid_key(path, e.within("foxglove")))?;
         self.validate_positioning(path)?;
         Ok(())
     }

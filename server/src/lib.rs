@@ -33,6 +33,7 @@ pub mod tls;
 pub mod tracking;
 pub mod triangulation;
 pub mod uncertainty;
+pub mod viz;
 
 pub use config::CoordinatorConfig;
 pub use error::ServerError;

@@ -9,17 +9,21 @@
 //! - [`runner`]: a scenario end to end over gRPC in simulated time.
 //! - [`pytools`]: the Python client libraries the system tests drive soundmap with.
 //! - [`replay`]: recorded trials (audio + poses + truth) through the same code path.
+//! - [`viewer`]: the Foxglove live view, MCAP recording and real-time pacing of a run.
+//! - [`mcap_replay`]: a coordinator re-run on the observations of an MCAP recording.
 //! - [`report`]: what a run records, and its CSV/JSON reports and plots.
 //! - [`error`]: the crate's error enum, [`SimError`].
 
 pub mod acoustics;
 pub mod error;
 pub mod kinematics;
+pub mod mcap_replay;
 pub mod pytools;
 pub mod replay;
 pub mod report;
 pub mod runner;
 pub mod scenario;
 pub mod slam_noise;
+pub mod viewer;
 
 pub use error::SimError;

@@ -3,7 +3,9 @@
 //! ```text
 //! soundmap-sim demo [--out DIR]
 //! soundmap-sim run SCENARIO [--out DIR] [--seed N] [--active on|off|compare] [--record DIR]
+//!                  [--foxglove ADDR] [--realtime] [--mcap FILE.mcap]
 //! soundmap-sim replay --robot id=ID,audio=F.wav,poses=F.tum,array=PRESET|F.toml[,start=S][,pose_std_m=M,yaw_std_deg=D] ... [--truth F.tum] --out DIR
+//! soundmap-sim replay-mcap FILE.mcap --out DIR [--config coordinator.toml]
 //! soundmap-sim list
 //! ```
 
@@ -61,9 +63,14 @@ enum Command {
         /// Also write the run as a recorded trial (WAV + TUM) into this directory.
         #[arg(long)]
         record: Option<PathBuf>,
+        /// The Foxglove live view, the MCAP recording and real-time pacing.
+        #[command(flatten)]
+        view: soundmap_sim::viewer::ViewArgs,
     },
     /// Replays recorded trials (audio + poses [+ ground truth]) through the same pipeline.
     Replay(soundmap_sim::replay::ReplayArgs),
+    /// Re-runs the coordinator on the observations of an MCAP recording (same reports as `replay`).
+    ReplayMcap(soundmap_sim::mcap_replay::ReplayMcapArgs),
     /// Lists the built-in scenarios.
     List,
 }
@@ -76,10 +83,24 @@ fn main() -> anyhow::Result<()> {
         .with_writer(std::io::stderr)
         .init();
     match Cli::parse().command {
-        Command::Demo { out } => run_scenario("paper-static", out, None, Active::Scenario, None),
-        Command::Run { scenario, out, seed, active, record } => {
+        Command::Demo { out } => {
+            run_scenario("paper-static", out, None, Active::Scenario, None, Default::default())
+        }
+        Command::Run { scenario, out, seed, active, record, view } => {
             let out = out.unwrap_or_else(|| PathBuf::from("out").join(scenario_stem(&scenario)));
-            run_scenario(&scenario, out, seed, active, record)
+            run_scenario(&scenario, out, seed, active, record, view)
+        }
+        Command::ReplayMcap(args) => {
+            let started = Instant::now();
+            let record = soundmap_sim::mcap_replay::replay_mcap(&args)?;
+            let summary = report::write_reports(&record, &args.out)?;
+            report::print_summary_table(&summary, &args.out);
+            eprintln!(
+                "replayed {:.1} s of recording in {:.1} s",
+                record.duration_s,
+                started.elapsed().as_secs_f64()
+            );
+            Ok(())
         }
         Command::Replay(args) => {
             let started = Instant::now();
@@ -113,6 +134,7 @@ fn run_scenario(
     seed: Option<u64>,
     active: Active,
     record: Option<PathBuf>,
+    view: soundmap_sim::viewer::ViewArgs,
 ) -> anyhow::Result<()> {
     let scenario = Scenario::load(name)?;
     let started = Instant::now();
@@ -121,6 +143,7 @@ fn run_scenario(
         active_positioning,
         record_dir: record.clone(),
         progress: true,
+        view: view.clone(),
     };
     eprintln!(
         "running {} ({:.0} s simulated, seed {})",
@@ -130,7 +153,11 @@ fn run_scenario(
     );
     if active == Active::Compare {
         let on = runner::run(&scenario, &options(Some(true)))?;
-        let off = runner::run(&scenario, &RunOptions { record_dir: None, ..options(Some(false)) })?;
+        // The live view and recording follow the first run only (one server, one file).
+        let off = runner::run(
+            &scenario,
+            &RunOptions { record_dir: None, view: Default::default(), ..options(Some(false)) },
+        )?;
         let (a, p) = report::write_comparison(&on, &off, &out)
             .with_context(|| format!("writing reports to {}", out.display()))?;
         report::print_summary_table(&a, &out.join("active"));

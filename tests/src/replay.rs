@@ -222,6 +222,9 @@ pub struct ReplayArgs {
     /// DoAs in a gap between poses longer than this are not sent (s).
     #[arg(long, default_value_t = 0.5)]
     pub max_pose_gap_s: f64,
+    /// The Foxglove live view, the MCAP recording and real-time pacing.
+    #[command(flatten)]
+    pub view: crate::viewer::ViewArgs,
 }
 
 /// A robot being replayed.
@@ -400,10 +403,11 @@ async fn replay_async(args: &ReplayArgs) -> Result<RunRecord, SimError> {
         Some(p) => soundmap_agent::config::load_pipeline(p)?,
         None => PipelineConfig::default(),
     };
-    let coordinator = match &args.coordinator_config {
+    let mut coordinator = match &args.coordinator_config {
         Some(p) => CoordinatorConfig::from_file(p)?,
         None => CoordinatorConfig::default(),
     };
+    args.view.apply(&mut coordinator);
     let mut robots = Vec::new();
     let mut paths = Vec::new();
     for r in &args.robots {
@@ -419,6 +423,8 @@ async fn replay_async(args: &ReplayArgs) -> Result<RunRecord, SimError> {
     let hellos: Vec<Hello> = robots.iter().map(|r| r.core.hello().clone()).collect();
     let t_start = robots.iter().map(|r| r.start).min().unwrap_or(SIM_EPOCH);
     let mut fleet = Fleet::start(coordinator, &hellos, t_start).await?;
+    let (mut truth_feed, pacer) =
+        (crate::viewer::TruthFeed::new(fleet.viz(), SIM_EPOCH), args.view.pacer(t_start));
     let mut rows = Vec::new();
     let mut end = t_start;
     // Hops in stamp order (ties: robot order), as a live fleet would send them.
@@ -426,7 +432,9 @@ async fn replay_async(args: &ReplayArgs) -> Result<RunRecord, SimError> {
         (0..robots.len()).filter(|&i| robots[i].next.is_some()).min_by_key(|&i| (robots[i].next, i))
     {
         let now = robots[i].hop(&mut fleet, i).await?;
+        truth_feed.at(now, &truths);
         end = end.max(now);
+        pacer.wait(now).await;
         for e in fleet.drain_estimates()? {
             rows.push(score(&e, &robots, &truths));
         }

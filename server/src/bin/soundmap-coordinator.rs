@@ -2,6 +2,7 @@
 //!
 //! ```text
 //! soundmap-coordinator [--config FILE] [--listen ADDR] [--estimates-jsonl FILE] [--metrics ADDR]
+//!                      [--foxglove ADDR] [--record FILE.mcap]
 //! ```
 
 use std::path::PathBuf;
@@ -32,6 +33,14 @@ struct Args {
     /// in DIR (overrides `state.dir`; the systemd unit gives its StateDirectory).
     #[arg(long, value_name = "DIR")]
     state_dir: Option<PathBuf>,
+    /// Serve the Foxglove live view (WebSocket, `foxglove.websocket.v1`) on ADDR
+    /// (overrides `foxglove.listen`), e.g. 127.0.0.1:8765.
+    #[arg(long, value_name = "ADDR")]
+    foxglove: Option<std::net::SocketAddr>,
+    /// Record the live view's channels and the raw soundmap.v1 messages to this
+    /// MCAP file (overrides `record.mcap`; the file is replaced).
+    #[arg(long, value_name = "FILE.mcap")]
+    record: Option<PathBuf>,
     /// Serve Prometheus metrics at http://ADDR/metrics (overrides `metrics.listen`), e.g. 127.0.0.1:9464.
     #[arg(long, value_name = "ADDR")]
     metrics: Option<std::net::SocketAddr>,
@@ -65,6 +74,12 @@ async fn main() -> anyhow::Result<()> {
     }
     if let Some(dir) = args.state_dir {
         config.state.dir = Some(dir);
+    }
+    if let Some(addr) = args.foxglove {
+        config.foxglove.listen = Some(addr);
+    }
+    if let Some(path) = args.record {
+        config.record.mcap = Some(path);
     }
     if let Some(addr) = args.metrics {
         config.metrics.listen = Some(addr);

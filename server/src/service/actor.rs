@@ -126,6 +126,8 @@ pub struct Actor {
     observation_log: Option<super::sink::LineFile>,
     /// Snapshots for the state store, bound counters, rate-limited warnings.
     upkeep: super::state_upkeep::Upkeep,
+    /// The live view and recording (`[foxglove]`, `[record]`).
+    viz: Option<crate::viz::VizSender>,
     metrics: Arc<Metrics>,
     /// Receipt times of observations waiting for an estimate.
     receipts: Vec<Instant>,
@@ -163,6 +165,7 @@ impl Actor {
                 metrics.clone(),
                 Arc::new(super::ratelog::RateLog::new(Duration::from_secs(10))),
             ),
+            viz: None,
             metrics,
             receipts: Vec::new(),
             planner_logged: None,
@@ -180,6 +183,23 @@ impl Actor {
     pub fn with_upkeep(mut self, upkeep: super::state_upkeep::Upkeep) -> Self {
         self.upkeep = upkeep;
         self
+    }
+
+    /// Also feeds the live view and recording.
+    pub fn with_viz(mut self, viz: Option<crate::viz::VizSender>) -> Self {
+        self.viz = viz;
+        self
+    }
+
+    /// Tells the live view what robot `conn` sent (accepted hellos, observations, command replies).
+    fn viz_from(&self, now: Stamp, conn: ConnId, input: impl FnOnce() -> soundmap_proto::RobotInput) {
+        if let (Some(v), Some(id)) = (&self.viz, self.coordinator.robot_of(conn)) {
+            match input() {
+                soundmap_proto::RobotInput::Hello(h) => v.hello(now, h),
+                soundmap_proto::RobotInput::Observation(o) => v.observation(now, id.clone(), o),
+                other => v.from_robot(now, id.clone(), other),
+            }
+        }
     }
 
     /// Runs on the calling thread until every request sender is gone or a
@@ -256,8 +276,12 @@ impl Actor {
     fn handle(&mut self, now: Stamp, request: Request) {
         match request {
             Request::Connect { hello, identity, outbound, reply } => {
+                let viz_hello = self.viz.as_ref().map(|_| hello.clone());
                 let result = self.coordinator.connect(now, hello, identity.as_ref());
                 if let Ok(w) = &result {
+                    if let Some(h) = viz_hello {
+                        self.viz_from(now, w.conn, || soundmap_proto::RobotInput::Hello(h));
+                    }
                     // A taken-over stale stream loses its outbound channel, which ends it.
                     self.streams.retain(|c, _| self.coordinator.is_current(*c));
                     let welcome = wire::CoordinatorMessage {
@@ -283,8 +307,12 @@ impl Actor {
                     _ => None,
                 };
                 let robot = self.robot_label(conn);
+                let viz_obs = self.viz.as_ref().map(|_| obs.clone());
                 match self.coordinator.observe(now, conn, obs) {
                     Ok(()) => {
+                        if let Some(o) = viz_obs {
+                            self.viz_from(now, conn, || soundmap_proto::RobotInput::Observation(o));
+                        }
                         self.metrics.telemetry.observations_accepted.get_or_create(&robot).inc();
                         self.receipts.push(received);
                         if let (Some(log), Some(line)) = (self.observation_log.as_mut(), line) {
@@ -321,6 +349,7 @@ impl Actor {
                 if let Err(e) = self.coordinator.command_ack(now, conn, &ack) {
                     self.send(conn, to_stream_error(&e, 0));
                 }
+                self.viz_from(now, conn, || soundmap_proto::RobotInput::CommandAck(ack));
             }
             Request::CommandProgress { conn, progress } => {
                 let state = match progress.state {
@@ -333,6 +362,7 @@ impl Actor {
                 if let Err(e) = self.coordinator.command_progress(now, conn, &progress) {
                     self.send(conn, to_stream_error(&e, 0));
                 }
+                self.viz_from(now, conn, || soundmap_proto::RobotInput::CommandProgress(progress));
             }
             Request::Disconnect { conn } => {
                 if let Some(id) = self.coordinator.robot_of(conn) {
@@ -394,6 +424,9 @@ impl Actor {
             let wire = Arc::new(estimate_to_wire(estimate));
             // No watcher is not an error.
             let _ = self.estimates.send(wire.clone());
+            if let Some(v) = &self.viz {
+                v.estimate(now, wire.clone());
+            }
             if let Some(sink) = &self.sink {
                 let _ = sink.send(wire);
             }
@@ -431,7 +464,11 @@ impl Actor {
                     wire::coordinator_message::Msg::Cancel(wire::CancelCommand { command_id, reason })
                 }
             };
-            self.send(out.conn, wire::CoordinatorMessage { msg: Some(msg) });
+            let msg = wire::CoordinatorMessage { msg: Some(msg) };
+            if let Some(v) = &self.viz {
+                v.to_robot(self.clock.now(), &out.robot_id, &msg);
+            }
+            self.send(out.conn, msg);
         }
         self.log_planner();
     }

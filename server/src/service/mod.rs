@@ -57,12 +57,21 @@ pub struct RunningCoordinator {
     actor: Option<std::thread::JoinHandle<()>>,
     ticker: Option<JoinHandle<()>>,
     sink: Option<std::thread::JoinHandle<()>>,
+    /// Where the Foxglove live view is served (`[foxglove] listen`), when it is.
+    pub foxglove_addr: Option<SocketAddr>,
+    viz: Option<crate::viz::Viz>,
 }
 
 impl RunningCoordinator {
     /// Subscribes to published estimates in-process (as `WatchEstimates` does over gRPC).
     pub fn subscribe(&self) -> broadcast::Receiver<Arc<wire::SourceEstimate>> {
         self.estimates.subscribe()
+    }
+
+    /// Feeds the live view and recording (e.g. with the true sources of a
+    /// simulation), when `[foxglove]` or `[record]` is configured.
+    pub fn viz(&self) -> Option<crate::viz::VizSender> {
+        self.viz.as_ref().map(crate::viz::Viz::sender)
     }
 
     /// Stops serving: ends every open stream (robots get UNAVAILABLE, watchers
@@ -87,6 +96,9 @@ impl RunningCoordinator {
         let _ = self.requests.send(actor::Request::Stop).await;
         if let Some(actor) = self.actor.take() {
             let _ = tokio::task::spawn_blocking(move || actor.join()).await;
+        }
+        if let Some(viz) = self.viz.take() {
+            let _ = tokio::task::spawn_blocking(move || viz.stop()).await;
         }
         if let Some(sink) = self.sink.take() {
             let _ = tokio::task::spawn_blocking(move || sink.join()).await;
@@ -146,6 +158,7 @@ pub async fn start(
     };
     let observation_log =
         config.output.observations_jsonl.as_deref().map(sink::LineFile::open).transpose()?;
+    let viz = crate::viz::Viz::start(&config.foxglove, &config.record, &config.planner.free_space).await?;
     let (stopping, stop_rx) = tokio::sync::watch::channel(false);
     let link = robot_link::RobotLinkService::new(&config, requests.clone(), clock.clone(), stop_rx.clone())
         .with_bounds(&config.server, metrics.clone(), ratelog.clone());
@@ -159,7 +172,8 @@ pub async fn start(
     };
     let actor = actor::Actor::new(coordinator, clock, estimates.clone(), sink_tx, metrics.clone())
         .with_observation_log(observation_log)
-        .with_upkeep(upkeep);
+        .with_upkeep(upkeep)
+        .with_viz(viz.as_ref().map(crate::viz::Viz::sender));
     let actor = std::thread::Builder::new()
         .name("coordinator".into())
         .spawn(move || actor.run(requests_rx))
@@ -198,6 +212,8 @@ pub async fn start(
         actor: Some(actor),
         ticker,
         sink,
+        foxglove_addr: viz.as_ref().and_then(crate::viz::Viz::local_addr),
+        viz,
     })
 }
 

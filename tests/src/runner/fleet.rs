@@ -47,6 +47,11 @@ impl Fleet {
         Ok(Fleet { coordinator, clock, links, estimates })
     }
 
+    /// The coordinator's live view and recording, when configured.
+    pub fn viz(&self) -> Option<soundmap_server::viz::VizSender> {
+        self.coordinator.viz()
+    }
+
     /// Sets the coordinator's clock.
     pub fn set_time(&self, now: Stamp) {
         self.clock.set(now);

@@ -49,6 +49,8 @@ pub struct RunOptions {
     pub record_dir: Option<PathBuf>,
     /// Shows a progress bar on the terminal.
     pub progress: bool,
+    /// The Foxglove live view, the MCAP recording and real-time pacing.
+    pub view: crate::viewer::ViewArgs,
 }
 
 /// Runs `scenario` and returns what it recorded.
@@ -89,8 +91,10 @@ async fn run_async(scenario: &Scenario, options: &RunOptions) -> Result<RunRecor
     let mut sim = Sim::start(scenario, options).await?;
     let blocks = (scenario.duration_s * sim.fs as f64 / BLOCK_LEN as f64).ceil() as u64;
     let bar = progress_bar(options.progress, blocks, &scenario.name);
+    let pacer = options.view.pacer(SIM_EPOCH);
     for b in 0..blocks {
         sim.block(b).await?;
+        pacer.wait(sim.stamp_of((b + 1) * BLOCK_LEN as u64)).await;
         if let Some(bar) = &bar {
             bar.inc(1);
         }
@@ -145,6 +149,8 @@ struct Sim<'a> {
     /// Per source, its true position at each hop (recordings only).
     source_truth: Vec<Vec<(i64, Point3<f64>)>>,
     commands: Vec<(f64, String, String)>,
+    /// The live view and recording, told the true sources (when on).
+    viz: (crate::viewer::TruthFeed, Vec<crate::report::SourceTruth>),
 }
 
 impl<'a> Sim<'a> {
@@ -155,8 +161,10 @@ impl<'a> Sim<'a> {
         let robots = build_robots(scenario, seed)?;
         let mut config = scenario.coordinator.clone();
         configure_positioning(&mut config, scenario, active);
+        options.view.apply(&mut config);
         let hellos: Vec<_> = robots.iter().map(SimRobot::hello).collect();
         let fleet = Fleet::start(config, &hellos, SIM_EPOCH).await?;
+        let fleet_viz = fleet.viz();
         let recorders = match &options.record_dir {
             Some(dir) => {
                 std::fs::create_dir_all(dir).map_err(|e| SimError::file(dir, e))?;
@@ -188,6 +196,10 @@ impl<'a> Sim<'a> {
             paths,
             source_truth: vec![Vec::new(); scenario.sources.len()],
             commands: Vec::new(),
+            viz: (
+                crate::viewer::TruthFeed::new(fleet_viz, SIM_EPOCH),
+                scenario.sources.iter().map(rows::source_truth).collect(),
+            ),
         })
     }
 
@@ -205,6 +217,7 @@ impl<'a> Sim<'a> {
         let fs = self.fs;
         let stamp_of = move |sample: u64| stamp_of_frame(SIM_EPOCH, sample, fs);
         hear_all(&mut self.robots, &sources, first, &stamp_of, self.recorders.as_mut())?;
+        self.viz.0.at(self.stamp_of(first + BLOCK_LEN as u64), &self.viz.1);
         let now = self.stamp_of(first + BLOCK_LEN as u64);
         self.deliver(now).await?;
         if b.is_multiple_of(12) {

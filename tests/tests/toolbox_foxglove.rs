@@ -1,0 +1,180 @@
+//! The live view and the recordings, checked with the tools a roboticist uses:
+//! a `websockets` client speaking `foxglove.websocket.v1` watches a simulated
+//! run, the `mcap` Python reader opens its recording, and `replay-mcap`
+//! re-runs the coordinator on it. Watching and recording change nothing.
+
+use std::net::{SocketAddr, TcpListener};
+use std::path::PathBuf;
+
+use serde_json::Value;
+use soundmap_sim::mcap_replay::{ReplayMcapArgs, replay_mcap};
+use soundmap_sim::pytools;
+use soundmap_sim::report::write_reports;
+use soundmap_sim::runner::{RunOptions, run};
+use soundmap_sim::scenario::Scenario;
+use soundmap_sim::viewer::ViewArgs;
+
+fn temp_dir(name: &str) -> PathBuf {
+    let d = std::env::temp_dir().join(format!("soundmap-foxglove-{name}-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&d);
+    std::fs::create_dir_all(&d).unwrap();
+    d
+}
+
+fn free_port() -> SocketAddr {
+    TcpListener::bind("127.0.0.1:0").unwrap().local_addr().unwrap()
+}
+
+fn topic<'a>(v: &'a Value, t: &str) -> &'a Value {
+    &v["topics"][t]
+}
+
+#[test]
+fn live_view_and_recording_change_nothing_and_replay_mcap_reproduces_the_run() {
+    let scenario = Scenario::load("smoke").unwrap();
+    let dir = temp_dir("run");
+    let seed = Some(11);
+    let plain = run(&scenario, &RunOptions { seed, ..RunOptions::default() }).unwrap();
+
+    // The same run, watched live (paced to wall-clock time) and recorded.
+    let addr = free_port();
+    let mcap = dir.join("run.mcap");
+    let url = format!("ws://{addr}");
+    let watcher =
+        std::thread::spawn(move || pytools::run("tests/python/foxglove_live_check.py", [url.as_str(), "30"]));
+    let view = ViewArgs { foxglove: Some(addr), realtime: true, mcap: Some(mcap.clone()) };
+    let viewed = run(&scenario, &RunOptions { seed, view, ..RunOptions::default() }).unwrap();
+    let live: Value = serde_json::from_str(&watcher.join().unwrap().stdout).unwrap();
+
+    // Same seed, same summary.json with and without the viewer and the recording.
+    let a = write_reports(&plain, &dir.join("plain")).unwrap();
+    let b = write_reports(&viewed, &dir.join("viewed")).unwrap();
+    assert_eq!(serde_json::to_value(&a).unwrap(), serde_json::to_value(&b).unwrap());
+    assert_eq!(
+        std::fs::read_to_string(dir.join("plain/summary.json")).unwrap(),
+        std::fs::read_to_string(dir.join("viewed/summary.json")).unwrap()
+    );
+
+    // What the Foxglove client saw and decoded.
+    println!("live view: {live}");
+    // The Foxglove SDK negotiates the protocol under its current name.
+    assert_eq!(live["subprotocol"], "foxglove.sdk.v1");
+    assert!(live["server"].as_str().unwrap().starts_with("soundmap-coordinator"));
+    assert!(live["time_messages"].as_u64().unwrap() > 0, "no server time broadcast");
+    for (t, schema) in [
+        ("/tf", "foxglove.FrameTransforms"),
+        ("/soundmap/doas", "foxglove.SceneUpdate"),
+        ("/soundmap/sources", "foxglove.SceneUpdate"),
+        ("/soundmap/estimates", "soundmap.v1.SourceEstimate"),
+        ("/soundmap/robots/pioneer/observation", "soundmap.v1.Observation"),
+    ] {
+        assert_eq!(topic(&live, t)["schema"], schema, "{t}");
+        assert!(topic(&live, t)["count"].as_u64().unwrap() > 10, "{t}: {}", topic(&live, t));
+    }
+    assert_eq!(topic(&live, "/soundmap/quality")["encoding"], "json");
+    let frames = live["frames"].as_array().unwrap();
+    for robot in ["pioneer", "turtlebot"] {
+        assert!(frames.contains(&serde_json::json!(["map", format!("{robot}/base")])), "{frames:?}");
+        assert!(frames.contains(&serde_json::json!([format!("{robot}/base"), format!("{robot}/array")])));
+    }
+    let ids: Vec<&str> = live["entity_ids"].as_array().unwrap().iter().filter_map(Value::as_str).collect();
+    for id in ["doa/pioneer", "doa/turtlebot", "source/1", "truth/0", "path/pioneer", "room"] {
+        assert!(ids.contains(&id), "{id} not in {ids:?}");
+    }
+    let fields = live["quality_fields"].as_array().unwrap();
+    for f in ["theta_deg", "gdop", "rse_m", "source_id", "trusted"] {
+        assert!(fields.contains(&Value::from(f)), "{f} not in {fields:?}");
+    }
+    let rse: Vec<f64> = live["rse_m"].as_array().unwrap().iter().filter_map(Value::as_f64).collect();
+    assert!(!rse.is_empty() && rse.iter().all(|r| *r < 0.5), "{rse:?}");
+    let e = &live["estimate"];
+    let d = ((e["x"].as_f64().unwrap()).powi(2)
+        + (e["y"].as_f64().unwrap() - 0.2).powi(2)
+        + (e["z"].as_f64().unwrap() - 1.2).powi(2))
+    .sqrt();
+    assert!(d < 0.5, "decoded estimate {e} is {d} m from the source");
+
+    // The layout in deploy/ shows topics the live view serves.
+    let layout =
+        std::fs::read_to_string(pytools::repo_root().join("deploy/foxglove/soundmap-layout.json")).unwrap();
+    let layout: Value = serde_json::from_str(&layout).unwrap();
+    let panels = layout["configById"].as_object().unwrap();
+    assert!(panels.keys().any(|k| k.starts_with("3D!")) && panels.keys().any(|k| k.starts_with("Plot!")));
+    for (id, panel) in panels {
+        let topics =
+            panel["topics"].as_object().map(|t| t.keys().cloned().collect::<Vec<_>>()).unwrap_or_default();
+        let plotted = panel["paths"].as_array().into_iter().flatten().filter_map(|p| p["value"].as_str());
+        for t in topics.iter().map(String::as_str).chain(plotted.map(|p| p.split('.').next().unwrap())) {
+            assert!(live["topics"].get(t).is_some(), "{id} shows {t}, which the live view does not serve");
+        }
+    }
+
+    // The recording, read with the mcap Python reader.
+    let out = pytools::run("tests/python/mcap_check.py", [mcap.to_str().unwrap()]);
+    let rec: Value = serde_json::from_str(&out.stdout).unwrap();
+    println!("recording: {rec}");
+    assert_eq!(rec["compression"], serde_json::json!(["zstd"]));
+    assert_eq!(rec["monotonic"], true);
+    for (name, encoding) in [
+        ("soundmap.v1.Observation", "protobuf"),
+        ("soundmap.v1.Hello", "protobuf"),
+        ("soundmap.v1.SourceEstimate", "protobuf"),
+        ("foxglove.SceneUpdate", "protobuf"),
+        ("foxglove.FrameTransforms", "protobuf"),
+    ] {
+        assert_eq!(rec["schemas"][name], encoding, "{name}");
+    }
+    assert_eq!(rec["channels"]["/soundmap/quality"]["encoding"], "json");
+    let count = |t: &str| rec["counts"][t].as_u64().unwrap_or(0) as usize;
+    assert_eq!(count("/soundmap/estimates"), plain.rows.len(), "every published estimate is recorded");
+    assert_eq!(count("/soundmap/quality"), plain.rows.len());
+    assert_eq!(count("/soundmap/robots/pioneer/hello"), 1);
+    assert!(count("/soundmap/robots/pioneer/observation") >= plain.rows.len() / 2);
+    assert_eq!(
+        count("/tf"),
+        count("/soundmap/robots/pioneer/observation") + count("/soundmap/robots/turtlebot/observation")
+    );
+    let span_s =
+        (rec["last_log_time"].as_u64().unwrap() - rec["first_log_time"].as_u64().unwrap()) as f64 / 1e9;
+    assert!((span_s - scenario.duration_s).abs() < 0.1, "log times span {span_s} s");
+    assert!(rec["observation"]["doas"].as_u64().unwrap() >= 1);
+
+    // replay-mcap: the same estimates, scored against the recorded truth.
+    let args = ReplayMcapArgs {
+        file: mcap.clone(),
+        out: dir.join("replayed"),
+        config: None,
+        view: ViewArgs::default(),
+    };
+    let replayed = replay_mcap(&args).unwrap();
+    assert_eq!(replayed.rows.len(), plain.rows.len());
+    for (r, p) in replayed.rows.iter().zip(&plain.rows) {
+        let (r, p) = (r.estimate_in_map.unwrap(), p.estimate_in_map.unwrap());
+        assert!((r - p).norm() < 1e-9, "{r} vs {p}");
+    }
+    let rs = write_reports(&replayed, &args.out).unwrap();
+    let (rs, ps) = (serde_json::to_value(&rs).unwrap(), serde_json::to_value(&a).unwrap());
+    println!("replay-mcap summary: {rs}");
+    assert_eq!(rs["estimates"], ps["estimates"]);
+    let (r95, p95) = (rs["rse_p95_m"].as_f64(), ps["rse_p95_m"].as_f64());
+    assert!(r95.is_some() && (r95.unwrap() - p95.unwrap()).abs() < 1e-3, "{r95:?} vs {p95:?}");
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+#[test]
+fn replay_mcap_refuses_what_is_not_a_soundmap_recording() {
+    let dir = temp_dir("bad");
+    let junk = dir.join("junk.mcap");
+    std::fs::write(&junk, b"not an mcap file at all").unwrap();
+    let args = |file: PathBuf| ReplayMcapArgs {
+        file,
+        out: dir.join("out"),
+        config: None,
+        view: ViewArgs::default(),
+    };
+    let e = replay_mcap(&args(junk.clone())).unwrap_err().to_string();
+    assert!(e.contains("junk.mcap") && e.contains("MCAP"), "{e}");
+    let e = replay_mcap(&args(dir.join("missing.mcap"))).unwrap_err().to_string();
+    assert!(e.contains("missing.mcap"), "{e}");
+    std::fs::remove_dir_all(&dir).unwrap();
+}
