@@ -91,7 +91,14 @@ proptest! {
         let cfg = TriangulationConfig::default();
         match (triangulate(&rays, &cfg), triangulate(&moved, &cfg)) {
             (Triangulation::Solved(a), Triangulation::Solved(b)) => {
-                prop_assert!((t * a.source_in_map - b.source_in_map).norm() < 1e-7, "point moved by {}", (t * a.source_in_map - b.source_in_map).norm());
+                // Where the geometry is ill-conditioned the cost is flat along the range, and
+                // the solver stops anywhere in a rounding-sized stretch of that valley: compare
+                // in the estimate's own standard deviations (e.g. θ 2.5°, κ 232: 1.2e-7 m
+                // apart, 1e-8 σ), and in metres where the geometry is good.
+                let moved_by = t * a.source_in_map - b.source_in_map;
+                let cov_b = b.quality.covariance.unwrap();
+                let sigmas = cov_b.try_inverse().map_or(f64::INFINITY, |inv| (moved_by.transpose() * inv * moved_by)[0].max(0.0).sqrt());
+                prop_assert!(moved_by.norm() < 1e-7 || sigmas < 1e-6, "point moved by {} m = {sigmas} σ", moved_by.norm());
                 let r = t.rotation.to_rotation_matrix();
                 let ca: Matrix3<f64> = r * a.quality.covariance.unwrap() * r.transpose();
                 prop_assert!((ca - b.quality.covariance.unwrap()).abs().max() < 1e-6 * ca.abs().max());
