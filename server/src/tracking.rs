@@ -27,6 +27,7 @@ pub mod config;
 pub mod filter;
 pub mod lag_buffer;
 pub mod lifecycle;
+pub mod noise;
 mod outcome;
 mod step;
 
@@ -44,6 +45,7 @@ use crate::triangulation::{Gate, Triangulation};
 use filter::doa_innovation;
 use lag_buffer::{Insertion, LagBuffer, Refusal};
 use lifecycle::{Confirmation, check_loss};
+use noise::Learned;
 use step::{Observation, Snapshot, StepParams, step};
 
 /// What became of an initialization.
@@ -114,6 +116,15 @@ pub struct TrackEstimate {
     pub last_update: Option<Stamp>,
     /// What happened to the DoAs.
     pub counts: TrackCounts,
+    /// θ at the estimate between the robots heard within the support window
+    /// (degrees, folded to [0, 90]; 0 with fewer than two).
+    pub theta_deg: f64,
+    /// Largest learned DoA noise scale λ among the robots (R = λ·R₀, ≥ 1).
+    pub noise_scale: f64,
+    /// Whether the NIS window is full and consistent with the noise model.
+    pub consistent: bool,
+    /// DoAs applied at good geometry (θ ≥ `good_geometry_theta_deg`).
+    pub good_geometry_updates: u32,
 }
 
 impl TrackEstimate {
@@ -130,6 +141,8 @@ struct Track {
     lost: Option<LossReason>,
     too_late: u64,
     before_track: u64,
+    /// θ of the triangulation it started from (degrees), when it did.
+    init_theta_deg: Option<f64>,
 }
 
 /// Tracks one source from DoAs: a CV EKF with per-DoA updates, χ² gating, an
@@ -152,6 +165,8 @@ impl SourceTracker {
             rules: config.lifecycle(),
             association_gate: chi2_quantile(2, config.association_probability),
             maintenance_gate: chi2_quantile(2, config.maintenance_probability),
+            learning: config.learning(),
+            good_theta_deg: config.good_geometry_theta_deg,
         };
         SourceTracker { config, params, track: None, last_id: 0 }
     }
@@ -196,6 +211,11 @@ impl SourceTracker {
         p[(3, 3)] = h * h;
         p[(4, 4)] = h * h;
         p[(5, 5)] = v * v;
+        // The robots' noise scales outlive the track; the rest starts afresh.
+        let learned = self
+            .track
+            .as_ref()
+            .map_or_else(Learned::default, |t| Learned::scales_of(&t.buffer.latest().0.learned));
         let start = Snapshot {
             stamp,
             filter: CvState::new(position, Vector3::zeros(), p),
@@ -206,6 +226,7 @@ impl SourceTracker {
             applied: 0,
             gated: 0,
             unusable: 0,
+            learned,
         };
         self.last_id += 1;
         self.track = Some(Track {
@@ -214,6 +235,7 @@ impl SourceTracker {
             lost: None,
             too_late: 0,
             before_track: 0,
+            init_theta_deg: None,
         });
         InitOutcome::Started { track_id: self.last_id }
     }
@@ -235,7 +257,31 @@ impl SourceTracker {
         let Some(covariance) = solution.quality.covariance else {
             return InitOutcome::Rejected(InitRejection::NoSolution);
         };
-        self.initialize(stamp, solution.source_in_map, covariance * self.config.init_covariance_inflation)
+        let outcome = self.initialize(
+            stamp,
+            solution.source_in_map,
+            covariance * self.config.init_covariance_inflation,
+        );
+        if let (InitOutcome::Started { .. }, Some(t)) = (outcome, self.track.as_mut()) {
+            t.init_theta_deg = Some(solution.quality.theta_deg);
+        }
+        outcome
+    }
+
+    /// True when the live track started from a triangulation whose θ was below
+    /// [`TrackerConfig::good_geometry_theta_deg`], has applied no DoA at good
+    /// geometry since (see [`TrackerConfig::evidence_updates`]), and
+    /// `triangulation` is accepted at a θ at or above it: the biased start
+    /// should not be carried on, restart from `triangulation`.
+    pub fn should_restart_from(&self, triangulation: &Triangulation) -> bool {
+        let Some(track) = self.track.as_ref().filter(|t| t.lost.is_none()) else { return false };
+        let good = self.config.good_geometry_theta_deg;
+        let bad_start = track.init_theta_deg.is_some_and(|t| t < good);
+        let no_evidence = track.buffer.latest().0.learned.good_geometry_updates == 0;
+        let better = triangulation.solution().is_some_and(|s| {
+            s.gate == Gate::Accepted && s.quality.theta_deg >= good && s.quality.covariance.is_some()
+        });
+        bad_start && no_evidence && better
     }
 
     /// Drops the current track.
@@ -317,6 +363,12 @@ impl SourceTracker {
             None => TrackState::Tentative,
         };
         let position_rms_m = filter.position_rms_m();
+        let learning = &self.params.learning;
+        let theta_deg = s.learned.theta_deg(&filter.position(), s.stamp, self.params.rules.support_window_ns);
+        let good_geometry_updates = s.learned.good_geometry_updates;
+        let consistent = s.learned.consistent(learning);
+        let geometry = theta_deg >= self.config.good_geometry_theta_deg
+            || good_geometry_updates >= self.config.evidence_updates;
         TrackEstimate {
             track_id: track.id,
             stamp,
@@ -327,7 +379,9 @@ impl SourceTracker {
             state,
             trusted: state == TrackState::Confirmed
                 && position_rms_m <= self.config.trusted_max_rms_m
-                && s.confirmation.is_supported(s.stamp, self.params.rules.support_window_ns),
+                && s.confirmation.is_supported(s.stamp, self.params.rules.support_window_ns)
+                && consistent
+                && geometry,
             last_nis: s.last_nis,
             mean_nis: (s.applied > 0).then(|| s.nis_sum / s.applied as f64),
             last_update: s.last_update,
@@ -338,6 +392,10 @@ impl SourceTracker {
                 too_late: track.too_late,
                 before_track: track.before_track,
             },
+            theta_deg,
+            noise_scale: s.learned.max_scale(learning),
+            consistent,
+            good_geometry_updates,
         }
     }
 }

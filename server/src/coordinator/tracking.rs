@@ -35,6 +35,8 @@ pub struct TrackingCounters {
     pub unused: u64,
     /// DoAs not given to the tracker because of the per-robot rate limit.
     pub skipped: u64,
+    /// Tracks restarted because they started from a poor geometry and a good one came.
+    pub restarts: u64,
 }
 
 use super::doa_queue::DoaQueue;
@@ -97,13 +99,25 @@ impl Tracking {
 
     /// Starts a track from `triangulation` (whose newest ray is stamped `stamp`)
     /// when there is none or it was lost and the triangulation's gate accepted it.
+    ///
+    /// A live track that started from a poor geometry and has seen no good one
+    /// since restarts from `triangulation` when it is accepted at a good θ
+    /// ([`SourceTracker::should_restart_from`]): its biased start would
+    /// otherwise be carried on.
     pub fn start_if_needed(&mut self, stamp: Stamp, triangulation: &Triangulation) -> Option<InitOutcome> {
-        let tracker = self.tracker.as_mut().filter(|t| t.needs_track())?;
+        let tracker = self.tracker.as_mut()?;
+        let restart = !tracker.needs_track() && tracker.should_restart_from(triangulation);
+        if !(tracker.needs_track() || restart) {
+            return None;
+        }
         let outcome = tracker.initialize_from_triangulation(stamp, triangulation);
         if let InitOutcome::Started { track_id } = outcome {
             self.counters.tracks_started += 1;
             self.ids.started(track_id, triangulation.solution().map(|s| s.source_in_map), stamp);
-            tracing::debug!(track_id, "source track started from a triangulation");
+            if restart {
+                self.counters.restarts += 1;
+            }
+            tracing::debug!(track_id, restart, "source track started from a triangulation");
         }
         Some(outcome)
     }

@@ -5,7 +5,9 @@ use soundmap_proto::{Problem, ValidationError};
 
 use super::filter::{DoaNoiseModel, ProcessNoise};
 use super::lifecycle::{LifecycleRules, MAX_CONFIRM_UPDATES};
+use super::noise::{LearningRules, MAX_WINDOW};
 use crate::ray::MIN_RANGE_M;
+use crate::stats::chi2_quantile;
 
 /// Settings of [`SourceTracker`](super::SourceTracker). Times are seconds,
 /// distances metres, probabilities in (0, 1).
@@ -88,6 +90,29 @@ pub struct TrackerConfig {
     /// A confirmed track fed by a single robot (the others' DoAs gated) for
     /// this long is lost and restarts from the next trusted triangulation (s). Default 1.0.
     pub single_robot_timeout_s: f64,
+    /// Learn each robot's DoA noise from its innovations against the track
+    /// and inflate the measurement variance when they say the prior σ is too
+    /// small (never deflate it; see `tracking::noise`). Default true.
+    pub learn_doa_noise: bool,
+    /// Averaging length of the learned noise (DoAs). Default 20 (2 s at 10 Hz).
+    pub noise_learning_updates: f64,
+    /// Largest learned variance scale λ (R = λ·R₀). Default 16 (σ × 4).
+    pub max_noise_scale: f64,
+    /// DoAs in the consistency window (applied or gated), 1..=32. Default 20.
+    pub consistency_window: usize,
+    /// A track is trusted only while the NIS sum of its window is within the
+    /// χ² (2W dof) quantile at this probability. Default 0.99 (mean NIS ≤ 3.19 at W = 20).
+    pub consistency_probability: f64,
+    /// θ at the track (widest angle between the rays of robots heard within
+    /// `support_window_s`, folded to ≤ 90°) from which the geometry counts as
+    /// good (degrees). A track is trusted only at θ at or above it, or once
+    /// `evidence_updates` DoAs were applied at such a θ; a track started from a
+    /// triangulation with θ below it restarts from the first accepted
+    /// triangulation above it while it has no such evidence. Default 30.
+    pub good_geometry_theta_deg: f64,
+    /// DoAs applied at good geometry after which a track may stay trusted when
+    /// the geometry degrades (its covariance then says how well it is pinned). Default 20.
+    pub evidence_updates: u32,
 }
 
 impl Default for TrackerConfig {
@@ -118,6 +143,13 @@ impl Default for TrackerConfig {
             support_window_s: 0.5,
             single_robot_timeout_s: 1.0,
             correlated_doa_fraction: 1.0,
+            learn_doa_noise: true,
+            noise_learning_updates: 20.0,
+            max_noise_scale: 16.0,
+            consistency_window: 20,
+            consistency_probability: 0.99,
+            good_geometry_theta_deg: 30.0,
+            evidence_updates: 20,
         }
     }
 }
@@ -142,6 +174,7 @@ impl TrackerConfig {
             ("max_doa_rate_hz", self.max_doa_rate_hz),
             ("single_robot_timeout_s", self.single_robot_timeout_s),
             ("correlated_doa_fraction", self.correlated_doa_fraction),
+            ("good_geometry_theta_deg", self.good_geometry_theta_deg),
         ];
         for (field, v) in non_negative {
             if !(v.is_finite() && v >= 0.0) {
@@ -157,6 +190,18 @@ impl TrackerConfig {
             ("lost_max_rms_m", self.lost_max_rms_m),
             ("trusted_max_rms_m", self.trusted_max_rms_m),
         ];
+        if !(self.noise_learning_updates.is_finite() && self.noise_learning_updates >= 1.0) {
+            return fail("noise_learning_updates", "must be finite and ≥ 1");
+        }
+        if !(self.max_noise_scale.is_finite() && self.max_noise_scale >= 1.0) {
+            return fail("max_noise_scale", "must be finite and ≥ 1");
+        }
+        if !(1..=MAX_WINDOW).contains(&self.consistency_window) {
+            return fail("consistency_window", "must be in 1..=32");
+        }
+        if self.good_geometry_theta_deg > 90.0 {
+            return fail("good_geometry_theta_deg", "must be in [0, 90]");
+        }
         for (field, v) in positive {
             if !(v.is_finite() && v > 0.0) {
                 return fail(field, "must be finite and > 0");
@@ -165,6 +210,7 @@ impl TrackerConfig {
         for (field, p) in [
             ("association_probability", self.association_probability),
             ("maintenance_probability", self.maintenance_probability),
+            ("consistency_probability", self.consistency_probability),
         ] {
             if !(p > 0.0 && p < 1.0) {
                 return fail(field, "must be in (0, 1)");
@@ -214,6 +260,17 @@ impl TrackerConfig {
             lost_max_rms_m: self.lost_max_rms_m,
             support_window_ns: secs_to_ns(self.support_window_s),
             single_robot_timeout_s: self.single_robot_timeout_s,
+        }
+    }
+
+    pub(super) fn learning(&self) -> LearningRules {
+        let window = self.consistency_window.clamp(1, MAX_WINDOW);
+        LearningRules {
+            learn: self.learn_doa_noise,
+            updates: self.noise_learning_updates,
+            max_scale: self.max_noise_scale,
+            window,
+            window_limit: chi2_quantile(2 * window, self.consistency_probability),
         }
     }
 

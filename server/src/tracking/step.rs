@@ -8,6 +8,7 @@ use soundmap_proto::Stamp;
 
 use super::filter::{CvState, DoaNoiseModel, ProcessNoise, Unusable, doa_innovation, joseph_update};
 use super::lifecycle::{Confirmation, LifecycleRules};
+use super::noise::{InnovationSample, Learned, LearningRules};
 use super::outcome::UpdateOutcome;
 use crate::ray::Ray;
 
@@ -62,6 +63,8 @@ pub(super) struct Snapshot {
     pub(super) applied: u64,
     pub(super) gated: u64,
     pub(super) unusable: u64,
+    /// Learned noise scales, NIS window and robots' positions.
+    pub(super) learned: Learned,
 }
 
 /// The numbers a DoA step needs.
@@ -72,6 +75,17 @@ pub(super) struct StepParams {
     pub(super) rules: LifecycleRules,
     pub(super) association_gate: f64,
     pub(super) maintenance_gate: f64,
+    pub(super) learning: LearningRules,
+    /// θ at or above which an applied update counts as evidence (degrees).
+    pub(super) good_theta_deg: f64,
+}
+
+impl StepParams {
+    /// The DoA noise model for `robot` given what `learned` holds: R = λ·R₀.
+    pub(super) fn doa_for(&self, learned: &Learned, robot: u32) -> (DoaNoiseModel, f64) {
+        let scale = learned.scale(robot, &self.learning);
+        (DoaNoiseModel { variance_inflation: self.doa.variance_inflation * scale, ..self.doa }, scale)
+    }
 }
 
 /// Predicts `prev` to `stamp` and applies (or gates) one DoA.
@@ -83,7 +97,8 @@ pub(super) fn step(
 ) -> (Snapshot, UpdateOutcome) {
     let predicted = prev.filter.predicted(stamp.seconds_since(prev.stamp).max(0.0), &p.noise);
     let mut next = Snapshot { stamp, filter: predicted, ..*prev };
-    let inn = match doa_innovation(&predicted, &obs.ray, &p.doa) {
+    let (model, scale) = p.doa_for(&prev.learned, obs.robot);
+    let inn = match doa_innovation(&predicted, &obs.ray, &model) {
         Ok(inn) => inn,
         Err(u) => {
             next.unusable += 1;
@@ -92,6 +107,13 @@ pub(super) fn step(
     };
     let threshold = if prev.confirmation.is_confirmed() { p.maintenance_gate } else { p.association_gate };
     next.last_nis = Some(inn.nis);
+    let sample = InnovationSample {
+        residual_sq: inn.residual.norm_squared(),
+        trace_s: inn.covariance.trace(),
+        prior_variance: inn.noise_variance_rad2 / scale,
+        scale,
+    };
+    next.learned.record_nis(inn.nis, &p.learning);
     if !(inn.nis <= threshold) {
         next.gated += 1;
         return (next, UpdateOutcome::Gated { nis: inn.nis, threshold });
@@ -105,5 +127,10 @@ pub(super) fn step(
     next.nis_sum += inn.nis;
     next.last_update = Some(stamp);
     next.confirmation.record(stamp, obs.robot, post.position_rms_m(), &p.rules);
+    next.learned.learn(obs.robot, stamp, sample, &p.learning);
+    next.learned.accepted(obs.robot, stamp, obs.ray.origin_in_map);
+    if next.learned.theta_deg(&post.position(), stamp, p.rules.support_window_ns) >= p.good_theta_deg {
+        next.learned.good_geometry_updates = next.learned.good_geometry_updates.saturating_add(1);
+    }
     (next, UpdateOutcome::Applied { nis: inn.nis })
 }
