@@ -18,7 +18,7 @@ use std::hint::black_box;
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
-use nalgebra::{Isometry3, Matrix3, Point3, Unit, Vector3};
+use nalgebra::{Isometry3, Matrix3, Point2, Point3, Unit, Vector3};
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 use rand_distr::{Distribution, StandardNormal};
@@ -27,7 +27,8 @@ use soundmap_proto::wire::robot_message::Msg as Up;
 use soundmap_proto::{ArrayInfo, Hello, Observation, RobotId, Stamp, TrackedDoa, wire};
 use soundmap_server::clock::SystemClock;
 use soundmap_server::planner::{
-    PlanOutcome, Planner, PlannerConfig, PlannerInput, RobotState, SourceEstimate,
+    Heard, PlanOutcome, Planner, PlannerConfig, PlannerInput, RobotState, SourceEstimate, StartPlan,
+    StartRobot,
 };
 use soundmap_server::ray::tangent_basis;
 use soundmap_server::tracking::{InitOutcome, SourceTracker, TrackerConfig};
@@ -236,7 +237,39 @@ fn bench_planner(quick: bool) {
         });
         println!("| {n} | hold (optimal spread at 2 m) | {:.3} | hold |", per / 1e6);
     }
+    bench_planner_from_bearings(&convex, iters);
     println!("targets: < 2 ms for 2 robots, < 20 ms for 8\n");
+}
+
+/// No position yet: robot 0 hears along +x, the others (clustered, deaf) are spread across its bearing.
+fn bench_planner_from_bearings(cfg: &PlannerConfig, iters: usize) {
+    for n in [2usize, 3, 8] {
+        let robots: Vec<StartRobot> = (0..n)
+            .map(|k| {
+                let (x, y) = (-5.0 + 0.9 * (k / 4) as f64, -4.0 + 0.8 * (k % 4) as f64);
+                StartRobot {
+                    id: RobotId::parse(&format!("r{k}"), "id").expect("valid id"),
+                    base_xy: Some(Point2::new(x, y)),
+                    heard: (k == 0).then(|| Heard {
+                        origin_in_map: Point3::new(x, y, 0.5),
+                        direction_in_map: Unit::new_normalize(Vector3::new(1.0, 0.6, 0.1)),
+                        activity: 0.8,
+                    }),
+                    active_goal: None,
+                }
+            })
+            .collect();
+        let mut planner = Planner::new(cfg.clone()).expect("valid config");
+        let outcome = match planner.plan_from_bearings(Stamp::ZERO, &robots, None) {
+            StartPlan::Goals(g) => format!("{} goals", g.len()),
+            other => panic!("from bearings, {n} robots: {other:?}"),
+        };
+        let per = time_per_call(3, iters, |_| {
+            planner.reset();
+            black_box(planner.plan_from_bearings(Stamp::ZERO, black_box(&robots), None));
+        });
+        println!("| {n} | no position yet: from bearings | {:.3} | {outcome} |", per / 1e6);
+    }
 }
 
 fn hello(i: usize) -> wire::RobotMessage {

@@ -300,7 +300,8 @@ impl Planner {
             min_separation_m: cfg.min_separation_m,
             array_height_m: 0.5,
         };
-        let plan = start::plan(&self.free, &settings, &mut self.explore, robots, hint);
+        let plan =
+            start::plan(now.as_ns() as f64 * 1e-9, &self.free, &settings, &mut self.explore, robots, hint);
         if matches!(&plan, StartPlan::Goals(g) if !g.is_empty()) {
             self.cadence.retasked(now);
             // The Fisher planning that follows starts afresh.

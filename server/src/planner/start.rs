@@ -24,7 +24,10 @@
 //!    loudly as the direct path, which is why it may be deaf.
 //! 3. **Approach along the bearing** where the direct-to-reverberant ratio is
 //!    poor: the hearer moves towards `S` while the assumed range exceeds the
-//!    preferred range by more than 1 m. In a room the direct and reverberant
+//!    preferred range by more than 1 m, to a spot beside its line (keep-out
+//!    radius + [`APPROACH_OFFSET_M`] from it, on the more open side): the
+//!    source lies somewhere on that line, so the goal keeps the keep-out
+//!    whatever the true range, and the move adds baseline across the line. In a room the direct and reverberant
 //!    energies are equal at the critical distance r_c ≈ 0.057·√(V/RT60)
 //!    (1.2 m for 240 m³ at 0.5 s); at 4 m the direct path is ≈ 10 dB under the
 //!    reverberation and DoAs come and go. Each step is at most 1 m and at most
@@ -36,7 +39,9 @@
 //!    spot near it. Robots start at slots spread evenly round the ring (the
 //!    slot nearest each robot for the first), and each advances one slot
 //!    counter-clockwise when it arrives; a robot whose position is unknown (it
-//!    has never been heard) is sent to its slot all the same.
+//!    has never been heard) is sent to its slot all the same. Exploring starts
+//!    only after [`QUIET_BEFORE_EXPLORING_S`] without any robot hearing, so that
+//!    robots just connected, or a talker's pause, do not send everyone away.
 //!
 //! A goal is not re-sent when the robot already drives to a spot within
 //! [`RESEND_DISTANCE_M`] of it or stands there.
@@ -59,6 +64,10 @@ pub const MAX_ASSUMED_RANGE_M: f64 = 5.0;
 pub const OPEN_MARGIN_M: f64 = 1.0;
 /// Spots on the exploration ring.
 pub const EXPLORE_SLOTS: usize = 8;
+/// An approach goal lies this far beyond the keep-out radius beside the heard line (m).
+pub const APPROACH_OFFSET_M: f64 = 0.5;
+/// Nobody must hear for this long before the robots explore (s).
+pub const QUIET_BEFORE_EXPLORING_S: f64 = 3.0;
 /// A goal this close to the robot's current goal or position is not re-sent (m).
 pub const RESEND_DISTANCE_M: f64 = 0.5;
 
@@ -117,16 +126,18 @@ pub(crate) struct StartSettings {
     pub array_height_m: f64,
 }
 
-/// Exploration memory: each robot's current ring slot.
+/// Exploration memory: each robot's current ring slot, and since when nobody hears.
 #[derive(Clone, Debug, Default)]
 pub(crate) struct Explore {
     slots: BTreeMap<RobotId, usize>,
+    quiet_since_s: Option<f64>,
 }
 
 impl Explore {
     /// Forgets the ring (a source was heard).
     pub fn clear(&mut self) {
         self.slots.clear();
+        self.quiet_since_s = None;
     }
 }
 
@@ -142,8 +153,9 @@ struct Hypothesis {
 }
 
 /// One cycle of planning from bearings (see the module doc). `hint` is a
-/// recent, possibly untrusted, source position.
+/// recent, possibly untrusted, source position; `now_s` any monotonic clock (s).
 pub(crate) fn plan(
+    now_s: f64,
     free: &FreeSpace,
     s: &StartSettings,
     explore: &mut Explore,
@@ -154,6 +166,10 @@ pub(crate) fn plan(
         return StartPlan::Hold("no robot to move".into());
     }
     let Some(h) = hypothesis(free, robots, hint) else {
+        let since = *explore.quiet_since_s.get_or_insert(now_s);
+        if now_s - since < QUIET_BEFORE_EXPLORING_S {
+            return StartPlan::Hold(format!("nobody hears the source yet ({:.1} s)", now_s - since));
+        }
         return StartPlan::Goals(explore_goals(free, s, explore, robots));
     };
     explore.clear();
@@ -166,8 +182,14 @@ pub(crate) fn plan(
     {
         let advance = (r - s.preferred_range_m).min(1.0).min(0.25 * r);
         let dir = (centre - anchor_xy).normalize();
-        let spot = anchor_xy + dir * advance;
-        if free.is_free(&spot) {
+        let side = Vector2::new(-dir.y, dir.x) * (s.min_range_m + APPROACH_OFFSET_M);
+        // Beside the line, on the more open side: never on the line the source is on.
+        let spot = [1.0, -1.0]
+            .map(|k| anchor_xy + dir * advance + side * k)
+            .into_iter()
+            .filter(|p| free.is_free(p))
+            .max_by(|a, b| free.distance_to_edges(a).total_cmp(&free.distance_to_edges(b)));
+        if let Some(spot) = spot {
             let why = format!(
                 "no position yet: approaching along its bearing ({}; heard poorly beyond {:.1} m)",
                 h.how, s.preferred_range_m
@@ -478,7 +500,7 @@ mod tests {
         // The hearer at (1.6, 1.4) hears along +x+y; the deaf robot sits 1 m from two walls.
         let robots = [robot("deaf", 1.0, 1.0, None), robot("ear", 1.6, 1.4, Some((1.0, 0.8)))];
         let free = room();
-        let g = goals(plan(&free, &settings(), &mut Explore::default(), &robots, None));
+        let g = goals(plan(0.0, &free, &settings(), &mut Explore::default(), &robots, None));
         let deaf = g.iter().find(|g| g.robot_id.as_str() == "deaf").expect("deaf robot moved");
         let ear = g.iter().find(|g| g.robot_id.as_str() == "ear").expect("hearer approaches");
         assert!(
@@ -494,10 +516,12 @@ mod tests {
         let o = Point2::new(1.6, 1.4);
         let off_line = ((p - o).x * d.y - (p - o).y * d.x).abs();
         assert!(off_line > 1.0, "spot {p:?} is {off_line} m from the heard line");
-        // The hearer moves along its line, at most 1 m.
+        // The hearer moves at most 1 m along its line, and keeps 1.5 m beside it.
         let q = xy(ear);
         let step = q - o;
-        assert!(step.norm() <= 1.0 + 1e-9 && step.normalize().dot(&d) > 0.99, "{q:?}");
+        let beside = (step.x * d.y - step.y * d.x).abs();
+        assert!(step.dot(&d) > 0.0 && step.dot(&d) <= 1.0 + 1e-9, "{q:?}");
+        assert!((beside - 1.5).abs() < 1e-9, "{q:?} is {beside} m beside the line");
         assert!(ear.why.contains("approaching along its bearing"), "{}", ear.why);
     }
 
@@ -515,7 +539,9 @@ mod tests {
         let free = room();
         let mut explore = Explore::default();
         let mut robots = [robot("a", 1.0, 1.0, None), robot("b", 1.6, 1.0, None)];
-        let g = goals(plan(&free, &settings(), &mut explore, &robots, None));
+        let quiet = plan(0.0, &free, &settings(), &mut explore, &robots, None);
+        assert!(matches!(&quiet, StartPlan::Hold(h) if h.starts_with("nobody hears")), "{quiet:?}");
+        let g = goals(plan(3.0, &free, &settings(), &mut explore, &robots, None));
         assert_eq!(g.len(), 2);
         assert!(g.iter().all(|g| g.why.starts_with("nothing heard: exploring")), "{g:?}");
         let (a, b) = (xy(&g[0]), xy(&g[1]));
@@ -524,7 +550,7 @@ mod tests {
         // Robot a arrives: it is sent on to the next spot; b, driving, is not re-sent.
         robots[0].base_xy = Some(a);
         robots[1].active_goal = Some(b);
-        let g2 = goals(plan(&free, &settings(), &mut explore, &robots, None));
+        let g2 = goals(plan(4.0, &free, &settings(), &mut explore, &robots, None));
         assert_eq!(g2.len(), 1, "{g2:?}");
         assert!((xy(&g2[0]) - a).norm() > 1.0);
     }
@@ -534,7 +560,7 @@ mod tests {
         let mut deaf = robot("deaf", 0.0, 0.0, None);
         deaf.base_xy = None;
         let robots = [deaf, robot("ear", 2.0, 2.0, Some((1.0, 0.0)))];
-        let g = goals(plan(&room(), &settings(), &mut Explore::default(), &robots, None));
+        let g = goals(plan(0.0, &room(), &settings(), &mut Explore::default(), &robots, None));
         assert!(g.iter().any(|g| g.robot_id.as_str() == "deaf"), "{g:?}");
     }
 }

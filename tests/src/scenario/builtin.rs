@@ -1,7 +1,7 @@
 //! Scenarios shipped with soundmap (`tests/scenarios/*.toml`).
 
 /// Names of the built-in scenarios.
-pub const NAMES: [&str; 10] = [
+pub const NAMES: [&str; 15] = [
     "smoke",
     "paper-static",
     "paper-moving",
@@ -12,6 +12,11 @@ pub const NAMES: [&str; 10] = [
     "cocktail",
     "crossing",
     "cocktail-active",
+    "corner-start",
+    "corner-start-3",
+    "far-source",
+    "fast-walker",
+    "deaf-near-wall",
 ];
 
 /// The TOML text of a built-in scenario.
@@ -27,6 +32,11 @@ pub fn text(name: &str) -> Option<&'static str> {
         "cocktail" => include_str!("../../scenarios/cocktail.toml"),
         "crossing" => include_str!("../../scenarios/crossing.toml"),
         "cocktail-active" => include_str!("../../scenarios/cocktail-active.toml"),
+        "corner-start" => include_str!("../../scenarios/corner-start.toml"),
+        "corner-start-3" => include_str!("../../scenarios/corner-start-3.toml"),
+        "far-source" => include_str!("../../scenarios/far-source.toml"),
+        "fast-walker" => include_str!("../../scenarios/fast-walker.toml"),
+        "deaf-near-wall" => include_str!("../../scenarios/deaf-near-wall.toml"),
         _ => return None,
     })
 }
