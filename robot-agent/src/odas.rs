@@ -22,6 +22,12 @@
 //!   positions are given in, which must be our array frame; ODAS prints 3 decimals,
 //!   so the vector is renormalized (norms further than 0.05 from 1 are rejected).
 //!
+//! - ODAS sends no uncertainty. Each DoA gets the prior σ of ODAS's DoAs,
+//!   [`PRIOR_SIGMA_DEG`] per tangent axis: one spacing of its level-4 scan grid
+//!   (2562 points, ≈ 4° apart), the order of its quantization plus the
+//!   reflections' pull in a furnished room. The coordinator learns each
+//!   robot's real noise from there (it only ever inflates the prior).
+//!
 //! ODAS's socket sink connects out as a TCP client to `ip:port` of its `tracked`
 //! interface, so the bridge listens there ([`serve_tcp`]). Files written by its
 //! file sink are read with [`read_sst_file`].
@@ -39,6 +45,10 @@ use crate::AgentError;
 
 /// Accepted deviation of an SST direction's norm from 1 (3-decimal printing).
 pub const NORM_TOLERANCE: f64 = 0.05;
+
+/// Prior 1-σ per tangent axis of an ODAS DoA (degrees): one spacing of
+/// ODAS's level-4 scan grid (see the module documentation).
+pub const PRIOR_SIGMA_DEG: f64 = 4.0;
 
 /// How ODAS hop counts map to fleet time.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -103,7 +113,7 @@ pub struct OdasFrame {
     pub time_stamp: u64,
     /// Fleet time of the hop.
     pub stamp: Stamp,
-    /// Non-empty slots as tracked DoAs (angular uncertainty unknown).
+    /// Non-empty slots as tracked DoAs (σ: [`PRIOR_SIGMA_DEG`]).
     pub doas: Vec<TrackedDoa>,
 }
 
@@ -133,7 +143,7 @@ impl SstFrame {
                 track_id: s.id,
                 direction_in_array: Unit::new_normalize(v),
                 activity: s.activity.clamp(0.0, 1.0),
-                angular_sigma_rad: None,
+                angular_sigma_rad: Some(PRIOR_SIGMA_DEG.to_radians()),
                 signature: None,
             });
         }

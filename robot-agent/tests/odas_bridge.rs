@@ -34,7 +34,8 @@ fn fixture_file_converts_to_tracked_doas() {
     let d = &frames[3].doas;
     assert_eq!((d[0].track_id, d[1].track_id), (1, 2));
     assert_eq!(d[1].activity, 0.42);
-    assert_eq!(d[0].angular_sigma_rad, None);
+    // ODAS sends no σ: the bridge attaches the prior of ODAS's DoAs.
+    assert_eq!(d[0].angular_sigma_rad, Some(soundmap_agent::odas::PRIOR_SIGMA_DEG.to_radians()));
     // Renormalized exactly; the direction is what the fixture encodes
     // (track 2: azimuth −120°, elevation −5°), to ODAS's 3 printed decimals.
     for f in &frames {
