@@ -314,8 +314,14 @@ fn spread_spots(
     let step = PI / (n + 1) as f64;
     let mut best: Option<(f64, Vec<Option<Point2<f64>>>)> = None;
     for sign in [1.0, -1.0] {
+        // Each slot keeps the separation from the anchor and the slots before it.
+        let mut taken = vec![anchor_xy];
         let slots: Vec<Option<Point2<f64>>> = (1..=n)
-            .map(|k| open_spot_near(free, s, &centre, wrap(phi + sign * k as f64 * step), &[anchor_xy]))
+            .map(|k| {
+                let spot = open_spot_near(free, s, &centre, wrap(phi + sign * k as f64 * step), &taken);
+                taken.extend(spot);
+                spot
+            })
             .collect();
         let mut cost = vec![0.0; n * n];
         for (i, r) in others.iter().enumerate() {
