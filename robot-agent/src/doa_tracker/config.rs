@@ -63,8 +63,8 @@ pub struct TrackerConfig {
 impl Default for TrackerConfig {
     fn default() -> Self {
         TrackerConfig {
-            birth_min_coherence: 0.15,
-            diffuse_margin: 0.1,
+            birth_min_coherence: 0.08,
+            diffuse_margin: 0.03,
             noise_sigmas: 4.0,
             birth_window_frames: 10,
             birth_min_hits: 7,
