@@ -41,7 +41,8 @@
 //! talkers' pauses, at a PHAT coherence of 0.1–0.18; the birth floor
 //! (`birth_min_coherence` 0.08, `diffuse_margin` 0.03 above the modelled
 //! diffuse response, plus 4 σ of the noise coherence) admits it, while the
-//! strongest noise-only peak of a 16-microphone array stays near 0.03 and the
+//! strongest peak of incoherent sensor noise on a 16-microphone array stays
+//! near 0.03 (0.033 at most over 10 s of white noise) and the
 //! hit-consistency rule still has to be met.
 //!
 //! Uncertainty: the measurement variance of each track is learnt from its
