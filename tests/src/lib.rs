@@ -9,6 +9,7 @@
 //! - [`runner`]: a scenario end to end over gRPC in simulated time.
 //! - [`pytools`]: the Python client libraries the system tests drive soundmap with.
 //! - [`replay`]: recorded trials (audio + poses + truth) through the same code path.
+//! - [`rosbag`]: ROS 2 bags (MCAP, CDR: audio_common audio, tf) converted for the replay.
 //! - [`viewer`]: the Foxglove live view, MCAP recording and real-time pacing of a run.
 //! - [`mcap_replay`]: a coordinator re-run on the observations of an MCAP recording.
 //! - [`report`]: what a run records, and its CSV/JSON reports and plots.
@@ -21,6 +22,7 @@ pub mod mcap_replay;
 pub mod pytools;
 pub mod replay;
 pub mod report;
+pub mod rosbag;
 pub mod runner;
 pub mod scenario;
 pub mod slam_noise;

@@ -62,6 +62,9 @@ pub struct RobotRecording {
     pub pose_std_m: Option<f64>,
     /// 1-σ yaw error of the poses (degrees).
     pub yaw_std_deg: Option<f64>,
+    /// A robot read from a ROS 2 bag (`--rosbag`): its topics and frames;
+    /// audio and poses are then converted from the bag ([`crate::rosbag`]).
+    pub rosbag: Option<crate::rosbag::BagRobot>,
 }
 
 impl RobotRecording {
@@ -80,6 +83,7 @@ impl RobotRecording {
                 start_s: 0.0,
                 pose_std_m: Some(pos),
                 yaw_std_deg: Some(yaw.to_degrees()),
+                rosbag: None,
             })
             .collect()
     }
@@ -115,6 +119,9 @@ pub fn parse_robot(s: &str) -> Result<RobotRecording, String> {
             return Err(format!("{k}: given twice"));
         }
     }
+    if crate::rosbag::is_bag_robot(&kv) {
+        return crate::rosbag::robot_from_keys(kv);
+    }
     let mut take = |k: &str| kv.remove(k);
     let need = |v: Option<String>, k: &str| {
         v.ok_or_else(|| format!("{k}: missing (id, audio, poses and array are required)"))
@@ -136,6 +143,7 @@ pub fn parse_robot(s: &str) -> Result<RobotRecording, String> {
         start_s: number(take("start"), "start")?.unwrap_or(0.0),
         pose_std_m: number(take("pose_std_m"), "pose_std_m")?,
         yaw_std_deg: number(take("yaw_std_deg"), "yaw_std_deg")?,
+        rosbag: None,
     };
     if let Some(k) = kv.keys().next() {
         return Err(format!(
@@ -222,6 +230,12 @@ pub struct ReplayArgs {
     /// DoAs in a gap between poses longer than this are not sent (s).
     #[arg(long, default_value_t = 0.5)]
     pub max_pose_gap_s: f64,
+    /// A ROS 2 bag (rosbag2 folder or its .mcap file) holding every robot's
+    /// audio and tf; each --robot then reads
+    /// id=NAME,audio_topic=TOPIC,array=PRESET[,info_topic=TOPIC][,base_frame=base_link][,map_frame=map],
+    /// and --truth files stamp in the bag's clock (Unix seconds).
+    #[arg(long, value_name = "BAG")]
+    pub rosbag: Option<PathBuf>,
     /// The Foxglove live view, the MCAP recording and real-time pacing.
     #[command(flatten)]
     pub view: crate::viewer::ViewArgs,
@@ -390,6 +404,12 @@ fn load_truth(track: &TruthTrack) -> Result<SourceTruth, SimError> {
 
 /// Replays the recordings and returns what the coordinator published.
 pub fn replay(args: &ReplayArgs) -> Result<RunRecord, SimError> {
+    if args.rosbag.is_some() {
+        return replay(&crate::rosbag::convert(args)?);
+    }
+    if let Some(r) = args.robots.iter().find(|r| r.rosbag.is_some()) {
+        return Err(SimError::Replay(format!("robot {}: audio_topic= reads a bag: give --rosbag BAG", r.id)));
+    }
     let runtime = tokio::runtime::Builder::new_multi_thread()
         .worker_threads(2)
         .enable_all()

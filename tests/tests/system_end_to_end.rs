@@ -75,6 +75,8 @@ fn replay_of_a_recording_gives_the_same_estimates() {
         coordinator_config: None,
         pipeline: None,
         max_pose_gap_s: 0.5,
+        view: soundmap_sim::viewer::ViewArgs::default(),
+        rosbag: None,
     };
     let replayed = replay(&args).unwrap();
     assert_eq!(replayed.rows.len(), direct.rows.len());

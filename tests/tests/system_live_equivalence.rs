@@ -104,6 +104,8 @@ fn live_agent_and_replay_send_the_same_observations() {
         coordinator_config: Some(coordinator_toml),
         pipeline: None,
         max_pose_gap_s: 0.5,
+        view: soundmap_sim::viewer::ViewArgs::default(),
+        rosbag: None,
     };
     replay(&args).unwrap();
 

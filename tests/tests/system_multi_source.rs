@@ -152,6 +152,8 @@ fn replay_with_several_truths_scores_like_the_run() {
         coordinator_config: None,
         pipeline: None,
         max_pose_gap_s: 0.5,
+        view: soundmap_sim::viewer::ViewArgs::default(),
+        rosbag: None,
     };
     // The replay runs the default coordinator: compare scoring, not estimates.
     let replayed = replay(&args).unwrap();
