@@ -52,6 +52,13 @@ pub struct ReplayMcapArgs {
     pub view: crate::viewer::ViewArgs,
 }
 
+/// A recorded message: its topic, log time (ns) and payload.
+type Recorded = (Topic, i64, Vec<u8>);
+/// The true sources at one log time (ns): position in `map`, and whether playing.
+type TruthSample = (i64, Vec<(Point3<f64>, bool)>);
+/// The robots' hellos with their log times (ns).
+type Hellos = Vec<(i64, Hello)>;
+
 /// What a topic of the recording carries.
 #[derive(Clone, Debug)]
 enum Topic {
@@ -87,7 +94,7 @@ impl Messages {
     }
 
     /// The next message: (its topic, log time in ns, payload).
-    fn next(&mut self) -> Option<Result<(Topic, i64, Vec<u8>), SimError>> {
+    fn next(&mut self) -> Option<Result<Recorded, SimError>> {
         let path = &self.path;
         let bad = |e: mcap::McapError| {
             SimError::Replay(format!("{}: not a readable MCAP file: {e}", path.display()))
@@ -117,9 +124,9 @@ impl Messages {
 }
 
 /// The hellos (first of each robot, in order) and true sources of a recording.
-fn read_header(path: &Path) -> Result<(Vec<(i64, Hello)>, Vec<SourceTruth>), SimError> {
-    let mut hellos: Vec<(i64, Hello)> = Vec::new();
-    let mut truth: Vec<(i64, Vec<(Point3<f64>, bool)>)> = Vec::new();
+fn read_header(path: &Path) -> Result<(Hellos, Vec<SourceTruth>), SimError> {
+    let mut hellos: Hellos = Vec::new();
+    let mut truth: Vec<TruthSample> = Vec::new();
     let mut messages = Messages::open(path)?;
     while let Some(m) = messages.next() {
         let (topic, t, data) = m?;
@@ -165,7 +172,7 @@ fn parse_truth(data: &[u8]) -> Option<Vec<(Point3<f64>, bool)>> {
 }
 
 /// Per source, its path and the intervals in which it was reported active.
-fn truth_tracks(t0: Stamp, samples: &[(i64, Vec<(Point3<f64>, bool)>)]) -> Vec<SourceTruth> {
+fn truth_tracks(t0: Stamp, samples: &[TruthSample]) -> Vec<SourceTruth> {
     let n = samples.iter().map(|(_, s)| s.len()).max().unwrap_or(0);
     (0..n)
         .map(|k| {

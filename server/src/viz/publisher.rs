@@ -138,7 +138,7 @@ impl Publisher {
                 let r = self.robot(robot.as_str());
                 log_raw(&r.from_robot, now.as_ns(), || input.to_wire().encode_to_vec());
             }
-            Event::ToRobot { now, robot, msg } => self.to_robot(now.as_ns(), robot.as_str(), &msg),
+            Event::ToRobot { now, robot, msg } => self.sent_to_robot(now.as_ns(), robot.as_str(), &msg),
             Event::Estimate { now, estimate } => self.estimate(now.as_ns(), &estimate),
             Event::Truth { now, sources } => self.truth(now.as_ns(), sources),
         }
@@ -184,7 +184,7 @@ impl Publisher {
         self.draw_room(ns);
     }
 
-    fn to_robot(&mut self, ns: i64, id: &str, msg: &wire::CoordinatorMessage) {
+    fn sent_to_robot(&mut self, ns: i64, id: &str, msg: &wire::CoordinatorMessage) {
         let goals = self.goals.clone();
         let r = self.robot(id);
         log_raw(&r.to_robot, ns, || msg.encode_to_vec());
