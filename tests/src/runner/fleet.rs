@@ -33,6 +33,9 @@ impl Fleet {
     pub async fn start(mut config: CoordinatorConfig, hellos: &[Hello], t0: Stamp) -> Result<Self, SimError> {
         config.liveness.tick_ms = 0;
         config.output.estimates_jsonl = None;
+        // Simulated and replayed time runs faster than the wall clock: the
+        // wall-clock guard on a live robot's observation rate does not apply.
+        config.server.max_observation_rate_hz = 100_000.0;
         let clock = ManualClock::new(t0);
         let listener = tokio::net::TcpListener::bind("127.0.0.1:0")
             .await
