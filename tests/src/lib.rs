@@ -19,6 +19,7 @@ pub mod acoustics;
 pub mod error;
 pub mod kinematics;
 pub mod mcap_replay;
+pub mod odas_like;
 pub mod pytools;
 pub mod replay;
 pub mod report;

@@ -17,6 +17,9 @@
 //!   counted, and reported (the run goes on);
 //! - estimates outside every truth trajectory: kept, with empty RSE.
 //!
+//! Robots that run ODAS: `odas=FILE.json` instead of `audio=` replays ODAS's
+//! SST output (see [`odas`]); such robots and audio robots mix freely.
+//!
 //! Several sources: one `--truth` per source (`FILE.tum[@A-B,C-D]`, the
 //! intervals when it played, [`parse_truth`]); each estimate is scored against
 //! the nearest source playing at its stamp ([`crate::report::multi`]).
@@ -44,14 +47,21 @@ use crate::runner::rows::{point, row_of};
 use crate::runner::{BLOCK_LEN, SIM_EPOCH, exchange};
 use crate::scenario::Scenario;
 
+pub mod odas;
+use odas::OdasHops;
+pub use odas::OdasRecording;
+
 /// One robot's recording, as given on the command line:
-/// `id=ID,audio=F.wav,poses=F.tum,array=PRESET|F.toml[,start=S][,pose_std_m=M][,yaw_std_deg=D]`.
+/// `id=ID,audio=F.wav,poses=F.tum,array=PRESET|F.toml[,start=S][,pose_std_m=M][,yaw_std_deg=D]`,
+/// or `odas=F.json[,odas_hop=128][,odas_rate=16000]` instead of `audio=`.
 #[derive(Clone, Debug, PartialEq)]
 pub struct RobotRecording {
     /// Robot id.
     pub id: String,
-    /// Multichannel WAV.
-    pub audio: PathBuf,
+    /// Multichannel WAV (`None` when the DoAs come from ODAS).
+    pub audio: Option<PathBuf>,
+    /// ODAS SST output instead of audio.
+    pub odas: Option<OdasRecording>,
     /// TUM trajectory of `map_from_base`.
     pub poses: PathBuf,
     /// Array preset or file.
@@ -77,7 +87,8 @@ impl RobotRecording {
             .iter()
             .map(|r| RobotRecording {
                 id: r.id.clone(),
-                audio: dir.join(format!("{}.wav", r.id)),
+                audio: Some(dir.join(format!("{}.wav", r.id))),
+                odas: None,
                 poses: dir.join(format!("{}.tum", r.id)),
                 array: r.array.clone(),
                 start_s: 0.0,
@@ -90,13 +101,20 @@ impl RobotRecording {
 
     /// The `--robot` argument that gives this recording ([`parse_robot`] reads it back).
     pub fn to_argument(&self) -> String {
-        let mut a = format!(
-            "id={},audio={},poses={},array={}",
-            self.id,
-            self.audio.display(),
-            self.poses.display(),
-            self.array
-        );
+        let mut a = format!("id={}", self.id);
+        if let Some(audio) = &self.audio {
+            a.push_str(&format!(",audio={}", audio.display()));
+        }
+        if let Some(o) = &self.odas {
+            a.push_str(&format!(",odas={}", o.path.display()));
+            if o.hop_len != odas::DEFAULT_HOP_LEN {
+                a.push_str(&format!(",odas_hop={}", o.hop_len));
+            }
+            if o.sample_rate_hz != odas::DEFAULT_SAMPLE_RATE_HZ {
+                a.push_str(&format!(",odas_rate={}", o.sample_rate_hz));
+            }
+        }
+        a.push_str(&format!(",poses={},array={}", self.poses.display(), self.array));
         if self.start_s != 0.0 {
             a.push_str(&format!(",start={}", self.start_s));
         }
@@ -124,7 +142,7 @@ pub fn parse_robot(s: &str) -> Result<RobotRecording, String> {
     }
     let mut take = |k: &str| kv.remove(k);
     let need = |v: Option<String>, k: &str| {
-        v.ok_or_else(|| format!("{k}: missing (id, audio, poses and array are required)"))
+        v.ok_or_else(|| format!("{k}: missing (id, audio or odas, poses and array are required)"))
     };
     let number = |v: Option<String>, k: &str| -> Result<Option<f64>, String> {
         v.map(|v| {
@@ -135,9 +153,34 @@ pub fn parse_robot(s: &str) -> Result<RobotRecording, String> {
         })
         .transpose()
     };
+    let count = |v: Option<String>, k: &str| -> Result<Option<u32>, String> {
+        v.map(|v| {
+            v.parse::<u32>()
+                .ok()
+                .filter(|x| *x > 0)
+                .ok_or_else(|| format!("{k}: {v:?} is not a positive integer"))
+        })
+        .transpose()
+    };
+    let (audio, odas_path) = (take("audio"), take("odas"));
+    let (hop, rate) = (count(take("odas_hop"), "odas_hop")?, count(take("odas_rate"), "odas_rate")?);
+    let odas = match (&audio, odas_path) {
+        (Some(_), Some(_)) => return Err("audio and odas: give one of them, not both".into()),
+        (None, None) => return Err("audio: missing (id, audio or odas, poses and array are required)".into()),
+        (_, Some(path)) => Some(OdasRecording {
+            path: path.into(),
+            hop_len: hop.unwrap_or(odas::DEFAULT_HOP_LEN),
+            sample_rate_hz: rate.unwrap_or(odas::DEFAULT_SAMPLE_RATE_HZ),
+        }),
+        (Some(_), None) if hop.is_some() || rate.is_some() => {
+            return Err("odas_hop, odas_rate: only with odas=FILE.json".into());
+        }
+        (Some(_), None) => None,
+    };
     let r = RobotRecording {
         id: need(take("id"), "id")?,
-        audio: need(take("audio"), "audio")?.into(),
+        audio: audio.map(PathBuf::from),
+        odas,
         poses: need(take("poses"), "poses")?.into(),
         array: need(take("array"), "array")?,
         start_s: number(take("start"), "start")?.unwrap_or(0.0),
@@ -147,7 +190,7 @@ pub fn parse_robot(s: &str) -> Result<RobotRecording, String> {
     };
     if let Some(k) = kv.keys().next() {
         return Err(format!(
-            "{k}: unknown key (expected id, audio, poses, array, start, pose_std_m, yaw_std_deg)"
+            "{k}: unknown key (expected id, audio, odas, odas_hop, odas_rate, poses, array, start, pose_std_m, yaw_std_deg)"
         ));
     }
     RobotId::parse(&r.id, "id").map_err(|e| e.to_string())?;
@@ -241,15 +284,21 @@ pub struct ReplayArgs {
     pub view: crate::viewer::ViewArgs,
 }
 
+/// Where a replayed robot's hops come from.
+enum Hops {
+    /// Audio through the agent's pipeline.
+    Audio { pipeline: Box<Pipeline>, audio: Box<dyn AudioSource>, hop: Vec<f32> },
+    /// ODAS's SST output.
+    Odas(OdasHops),
+}
+
 /// A robot being replayed.
 struct Replayed {
     id: RobotId,
     array: ArrayGeometry,
-    pipeline: Pipeline,
-    audio: Box<dyn AudioSource>,
+    hops: Hops,
     core: Agent,
     navigator: DecliningNavigator,
-    hop: Vec<f32>,
     /// Stamp of the next hop's first sample; `None` once the audio is exhausted.
     next: Option<Stamp>,
     start: Stamp,
@@ -262,12 +311,20 @@ impl Replayed {
     /// end of the simulator-sized block holding it.
     async fn hop(&mut self, fleet: &mut Fleet, i: usize) -> Result<Stamp, SimError> {
         let first = self.next.expect("a hop is left");
-        let result = self.pipeline.process_hop(first, &self.hop);
-        let (stamp, doas) = (result.stamp, result.confirmed_doas());
-        let block = BLOCK_LEN as u64;
-        let block_end = (self.samples_done / block + 1) * block;
-        self.samples_done += self.pipeline.hop_len() as u64;
-        let now = stamp_of_frame(self.start, block_end, self.pipeline.sample_rate_hz());
+        let (now, stamp, doas) = match &mut self.hops {
+            Hops::Audio { pipeline, hop, .. } => {
+                let result = pipeline.process_hop(first, hop);
+                let (stamp, doas) = (result.stamp, result.confirmed_doas());
+                let block = BLOCK_LEN as u64;
+                let block_end = (self.samples_done / block + 1) * block;
+                self.samples_done += pipeline.hop_len() as u64;
+                (stamp_of_frame(self.start, block_end, pipeline.sample_rate_hz()), stamp, doas)
+            }
+            Hops::Odas(o) => {
+                let (frame, now) = o.take().expect("a hop is left");
+                (now, frame.stamp, frame.doas)
+            }
+        };
         fleet.set_time(now);
         self.core.handle_hop(now, stamp, doas);
         exchange(fleet, &mut self.core, &mut self.navigator, i, now).await?;
@@ -275,7 +332,10 @@ impl Replayed {
     }
 
     fn advance(&mut self) -> Result<(), SimError> {
-        self.next = self.audio.next_block(&mut self.hop)?;
+        self.next = match &mut self.hops {
+            Hops::Audio { audio, hop, .. } => audio.next_block(hop)?,
+            Hops::Odas(o) => o.next_stamp(),
+        };
         Ok(())
     }
 }
@@ -289,16 +349,24 @@ impl Replayed {
         max_pose_gap_s: f64,
     ) -> Result<(Replayed, RobotPath), SimError> {
         let array = ArrayGeometry::load(&r.array)?;
-        let pipeline = Pipeline::new(&array, pipeline_config)?;
         let start = SIM_EPOCH.plus_secs(r.start_s);
-        let options = BlockOptions {
-            hop_len: pipeline.hop_len(),
-            channels: array.channels(),
-            sample_rate_hz: pipeline.sample_rate_hz(),
-            channel_map: None,
-            start,
+        let hops = match (&r.audio, &r.odas) {
+            (_, Some(o)) => Hops::Odas(OdasHops::open(o, start)?),
+            (Some(path), None) => {
+                let pipeline = Pipeline::new(&array, pipeline_config)?;
+                let options = BlockOptions {
+                    hop_len: pipeline.hop_len(),
+                    channels: array.channels(),
+                    sample_rate_hz: pipeline.sample_rate_hz(),
+                    channel_map: None,
+                    start,
+                };
+                let audio = audio::open(&AudioInput::Wav { path: path.clone() }, &options)?;
+                let hop = vec![0.0; array.channels() * pipeline.hop_len()];
+                Hops::Audio { pipeline: Box::new(pipeline), audio, hop }
+            }
+            (None, None) => return Err(SimError::Replay(format!("robot {}: neither audio nor odas", r.id))),
         };
-        let audio = audio::open(&AudioInput::Wav { path: r.audio.clone() }, &options)?;
         let list = read_tum(&r.poses, PoseTimeMapping::new(0.0, SIM_EPOCH))?;
         if list.is_empty() {
             return Err(SimError::Replay(format!("{}: no poses", r.poses.display())));
@@ -335,27 +403,29 @@ impl Replayed {
             (None, None) => None,
             (p, y) => Some(pose_covariance(p.unwrap_or(0.0), y.unwrap_or(0.0).to_radians())),
         };
-        let hop = vec![0.0; array.channels() * pipeline.hop_len()];
         let id = RobotId::parse(&r.id, "id")?;
         let version = concat!("soundmap-sim replay ", env!("CARGO_PKG_VERSION"));
-        let core_config = CoreConfig {
-            pose_buffer: poses,
-            doa_sigma_floor_rad: pipeline.doa_sigma_floor_rad(),
-            ..CoreConfig::default()
+        let (doa_sigma_floor_rad, hello) = match &hops {
+            // The hello declares the tracks and signature bands the pipeline reports, as live.
+            Hops::Audio { pipeline, .. } => (
+                pipeline.doa_sigma_floor_rad(),
+                pipeline_config.declare_tracks(agent::hello(id.clone(), &array, version.into()))?,
+            ),
+            // As the live agent with `[doa] source = "odas"`.
+            Hops::Odas(_) => {
+                (CoreConfig::default().doa_sigma_floor_rad, agent::hello(id.clone(), &array, version.into()))
+            }
         };
-        // The hello declares the tracks and signature bands the pipeline reports, as live.
-        let hello = pipeline_config.declare_tracks(agent::hello(id.clone(), &array, version.into()))?;
+        let core_config = CoreConfig { pose_buffer: poses, doa_sigma_floor_rad, ..CoreConfig::default() };
         let mut core = Agent::new(hello, core_config, &r.poses.display().to_string())?;
         let trajectory = list.into_iter().map(|p| StampedPose { covariance, ..p }).collect();
         core.handle_trajectory(start, trajectory)?;
         let robot = Replayed {
             id,
             array,
-            pipeline,
-            audio,
+            hops,
             core,
             navigator: DecliningNavigator::new("replay: a recorded robot cannot move"),
-            hop,
             next: None,
             start,
             samples_done: 0,
