@@ -132,7 +132,7 @@ impl AudioTrack {
     /// Appends one message (`stamp_ns` of its first sample).
     pub fn push(&mut self, stamp_ns: i64, bytes: &[u8]) -> Result<(), SimError> {
         let frame_bytes = self.format.bytes() * self.channels;
-        if bytes.len() % frame_bytes != 0 {
+        if !bytes.len().is_multiple_of(frame_bytes) {
             return Err(SimError::Replay(format!(
                 "{}: a message of {} bytes at {stamp_ns} ns is not whole frames of {} channels × {} bytes",
                 self.topic,

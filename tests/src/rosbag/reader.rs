@@ -47,6 +47,9 @@ pub fn bag_files(bag: &Path) -> Result<Vec<PathBuf>, SimError> {
     Ok(files)
 }
 
+/// One message: its topic and its CDR bytes.
+pub type Message = (std::rc::Rc<Topic>, Vec<u8>);
+
 /// Messages of a bag in file order.
 pub struct BagMessages {
     files: Vec<PathBuf>,
@@ -69,8 +72,8 @@ impl BagMessages {
         Ok(BagMessages { files, current: None, schemas: HashMap::new(), channels: HashMap::new() })
     }
 
-    /// The next message: its topic, header-independent log time (ns) and CDR bytes.
-    pub fn next_message(&mut self) -> Result<Option<(std::rc::Rc<Topic>, Vec<u8>)>, SimError> {
+    /// The next message.
+    pub fn next_message(&mut self) -> Result<Option<Message>, SimError> {
         loop {
             if self.current.is_none() {
                 let Some(path) = self.files.pop() else { return Ok(None) };
