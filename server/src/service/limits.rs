@@ -309,24 +309,26 @@ pub fn serving_options(builder: tonic::transport::Server, config: &ServerConfig)
         .max_concurrent_streams(Some(config.max_streams_per_connection))
 }
 
-/// A token bucket: `rate` per second, at most `rate` banked.
+/// A token bucket: `rate` per second, at most `rate` banked. Time is the
+/// coordinator's clock (ns), so a simulation driving it faster than real time
+/// sees the rate in its own time.
 #[derive(Clone, Copy, Debug)]
 pub struct TokenBucket {
     rate: f64,
     tokens: f64,
-    at: std::time::Instant,
+    at: Option<i64>,
 }
 
 impl TokenBucket {
     /// A full bucket.
     pub fn new(rate: f64) -> Self {
-        TokenBucket { rate, tokens: rate, at: std::time::Instant::now() }
+        TokenBucket { rate, tokens: rate, at: None }
     }
 
-    /// Takes a token at `now` if there is one.
-    pub fn take_at(&mut self, now: std::time::Instant) -> bool {
-        let dt = now.saturating_duration_since(self.at).as_secs_f64();
-        self.at = now;
+    /// Takes a token at `now_ns` if there is one.
+    pub fn take_at(&mut self, now_ns: i64) -> bool {
+        let dt = self.at.map_or(0.0, |at| now_ns.saturating_sub(at).max(0) as f64 * 1e-9);
+        self.at = Some(self.at.map_or(now_ns, |at| at.max(now_ns)));
         self.tokens = (self.tokens + dt * self.rate).min(self.rate);
         if self.tokens >= 1.0 {
             self.tokens -= 1.0;
@@ -459,8 +461,13 @@ impl LinkBounds {
     }
 
     /// Whether the stream `conn` may send one more observation now; the error when not.
-    pub fn admit_observation(&self, bucket: &mut TokenBucket, conn: u64) -> Result<(), crate::ServerError> {
-        if bucket.take_at(std::time::Instant::now()) {
+    pub fn admit_observation(
+        &self,
+        bucket: &mut TokenBucket,
+        conn: u64,
+        now: soundmap_proto::Stamp,
+    ) -> Result<(), crate::ServerError> {
+        if bucket.take_at(now.as_ns()) {
             return Ok(());
         }
         LimitCounters::bump(&self.metrics.limits.observations_rate_limited);
@@ -497,12 +504,12 @@ mod tests {
 
     #[test]
     fn bucket_allows_the_rate_and_a_one_second_burst() {
-        let t0 = std::time::Instant::now();
-        let mut b = TokenBucket { rate: 100.0, tokens: 100.0, at: t0 };
+        let t0 = 1_767_225_600_000_000_000i64;
+        let mut b = TokenBucket::new(100.0);
         let burst = (0..1000).filter(|_| b.take_at(t0)).count();
         assert_eq!(burst, 100);
         // Then 100 per second: 10 s at 1 kHz lets ~1,000 through.
-        let passed = (1..=10_000).filter(|i| b.take_at(t0 + Duration::from_micros(1000 * i))).count();
+        let passed = (1..=10_000).filter(|i| b.take_at(t0 + 1_000_000 * i)).count();
         assert!((990..=1010).contains(&passed), "{passed}");
     }
 

@@ -186,7 +186,7 @@ async fn read_stream(
             _ => None,
         };
         if sequence.is_some()
-            && let Err(error) = svc.bounds.admit_observation(&mut bucket, conn)
+            && let Err(error) = svc.bounds.admit_observation(&mut bucket, conn, svc.clock.now())
         {
             if svc.requests.send(actor::Request::Rejected { conn, sequence, error }).await.is_err() {
                 return;
