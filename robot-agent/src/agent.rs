@@ -405,7 +405,7 @@ impl Agent {
             match a {
                 Attached::Ready { pose, payload } => {
                     self.stats.hops_with_pose += 1;
-                    if !self.silence.keep(&payload) {
+                    if !self.silence.keep(&payload, pose.stamp) {
                         self.stats.silent_hops += 1;
                         continue;
                     }
