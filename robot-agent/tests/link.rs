@@ -487,8 +487,9 @@ async fn link_relays_commands_counts_stream_errors_and_sends_heartbeats() {
     assert!(s.heartbeats >= 2);
 }
 
-/// While nothing is heard no observation is sent, yet the navigator must still
-/// see the robot arrive from the pose feed and report the command done.
+/// While nothing is heard only one empty observation per 0.5 s is sent, yet the
+/// navigator must still see the robot arrive from the pose feed and report the
+/// command done.
 #[tokio::test]
 async fn a_command_succeeds_while_the_robot_hears_nothing() {
     let (fake, mut got) = Fake::new(true);
@@ -526,13 +527,15 @@ async fn a_command_succeeds_while_the_robot_hears_nothing() {
                     break;
                 }
             }
-            Got::Observation(_) => {} // the one empty observation after the DoAs
+            Got::Observation(_) => {} // the empty observations of the silence
             other => panic!("unexpected {other:?}"),
         }
     }
     assert_eq!(states.first(), Some(&(wire::CommandState::Executing as i32)));
     let s = r.stop().await;
-    assert_eq!(s.sent, 2, "one observation with the DoA, one empty after it");
+    // Silent hops run from 0.1 to 1.0 s after the DoA: the empty one after it
+    // (0.1 s) and one more 0.5 s later (0.6 s), which tells where the robot is.
+    assert_eq!(s.sent, 3, "the DoA, one empty after it, one empty 0.5 s into the silence");
     let text = std::fs::read_to_string(&goals).unwrap();
     assert!(text.contains("\"command_id\":100"), "{text}");
     let _ = std::fs::remove_dir_all(&dir);
