@@ -26,6 +26,9 @@ pub struct Positioning {
     planner: Planner,
     next_command_id: u64,
     status: Option<PlannerStatus>,
+    /// Since when planning cycles have found no estimate at all (planning from
+    /// bearings waits `BEARINGS_AFTER_S` of that, as it does after an estimate).
+    without_estimate_since: Option<Stamp>,
 }
 
 impl Positioning {
@@ -46,6 +49,7 @@ impl Positioning {
             planner_config,
             planner,
             next_command_id: 1,
+            without_estimate_since: None,
             status: None,
         })
     }
@@ -129,6 +133,18 @@ impl Positioning {
             }
         }
         outcome
+    }
+
+    /// Seconds for which cycles have found no estimate at all, counted from the
+    /// first such cycle.
+    pub fn seconds_without_estimate(&mut self, now: Stamp) -> f64 {
+        let since = *self.without_estimate_since.get_or_insert(now);
+        (now - since) as f64 * 1e-9
+    }
+
+    /// An estimate came: the count of [`Positioning::seconds_without_estimate`] restarts.
+    pub fn estimate_seen(&mut self) {
+        self.without_estimate_since = None;
     }
 
     /// One cycle of planning from bearings (no usable source estimate; see

@@ -38,6 +38,7 @@ const HINT_WITHIN_S: f64 = 3.0;
 impl Coordinator {
     /// Runs one planning cycle for `estimate` at `now` (see the module docs).
     pub(super) fn reposition(&mut self, now: Stamp, estimate: &Estimate) {
+        self.positioning.estimate_seen();
         let source = match estimate.planning_source(&self.config.triangulation) {
             Ok(s) => s,
             Err(why) => {
@@ -87,6 +88,9 @@ impl Coordinator {
                 Ok(_) => return,
                 Err(why) => why,
             },
+            // Nothing yet: the first estimate may be one observation away (the
+            // other robot's); wait as long as after a stale one.
+            None if self.positioning.seconds_without_estimate(now) < BEARINGS_AFTER_S => return,
             None => "no position yet".to_owned(),
         };
         self.plan_from_bearings(now, &why);
