@@ -16,7 +16,6 @@ use std::sync::Arc;
 use soundmap_agent::config::AgentConfig;
 use soundmap_agent::live::LivePlan;
 use soundmap_server::CoordinatorConfig;
-use soundmap_server::clock::SystemClock;
 use soundmap_sim::replay::{ReplayArgs, parse_robot, replay};
 use soundmap_sim::runner::{RunOptions, SIM_EPOCH, run};
 use soundmap_sim::scenario::Scenario;
@@ -67,6 +66,19 @@ arrival_tolerance_m = 0.25
     )
 }
 
+/// A clock that runs in real time from `epoch`.
+#[derive(Debug)]
+struct WallClockFrom {
+    epoch: soundmap_proto::Stamp,
+    started: std::time::Instant,
+}
+
+impl soundmap_server::clock::Clock for WallClockFrom {
+    fn now(&self) -> soundmap_proto::Stamp {
+        self.epoch.plus_ns(self.started.elapsed().as_nanos() as i64)
+    }
+}
+
 #[test]
 fn live_agent_and_replay_send_the_same_observations() {
     let mut scenario = Scenario::load("smoke").unwrap();
@@ -109,14 +121,19 @@ fn live_agent_and_replay_send_the_same_observations() {
     };
     replay(&args).unwrap();
 
-    // (1) the live agents against a real coordinator on the wall clock.
+    // (1) the live agents against a real coordinator on a wall clock (one that
+    // reads a minute after the recording's epoch at the start and runs in real
+    // time: the coordinator refuses stamps older than `limits.max_past_ms` or
+    // ahead of its clock, and the agents send the recording as fast as they can).
     let live_log = dir.join("live-observations.jsonl");
     let runtime = tokio::runtime::Builder::new_multi_thread().worker_threads(2).enable_all().build().unwrap();
     let mut config = CoordinatorConfig::default();
     config.output.observations_jsonl = Some(live_log.clone());
     let coordinator = runtime.block_on(async {
         let listener = tokio::net::TcpListener::bind("127.0.0.1:0").await.unwrap();
-        soundmap_server::service::start(config, Arc::new(SystemClock), listener).await.unwrap()
+        let clock =
+            WallClockFrom { epoch: SIM_EPOCH.plus_ns(60_000_000_000), started: std::time::Instant::now() };
+        soundmap_server::service::start(config, Arc::new(clock), listener).await.unwrap()
     });
     let endpoint = format!("http://{}", coordinator.local_addr);
     let agents: Vec<_> = scenario
