@@ -57,8 +57,10 @@ def main():
                 out["first_log_time"] = message.log_time
             out["last_log_time"] = message.log_time
             if channel.topic.endswith("/observation") and out["observation"] is None:
+                # The first observation that heard something (a robot's first hops may be silent).
                 o = decode(schema, message.data)
-                out["observation"] = {"topic": channel.topic, "stamp_ns": o.stamp_ns, "doas": len(o.doas)}
+                if len(o.doas) > 0:
+                    out["observation"] = {"topic": channel.topic, "stamp_ns": o.stamp_ns, "doas": len(o.doas)}
             elif channel.topic == "/soundmap/estimates" and o_is_positioned(schema, message.data):
                 e = decode(schema, message.data)
                 p = e.position_in_map_m
