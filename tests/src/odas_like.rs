@@ -55,62 +55,8 @@ use rand_distr::StandardNormal;
 /// ODAS's scan grid at `level`: the icosahedron's vertices with each face
 /// split into 4 `level` times (10·4^level + 2 points; 2562 at level 4).
 pub fn icosphere(level: u32) -> Vec<Vector3<f64>> {
-    let t = (1.0 + 5f64.sqrt()) / 2.0;
-    let mut points: Vec<Vector3<f64>> = [
-        (-1.0, t, 0.0),
-        (1.0, t, 0.0),
-        (-1.0, -t, 0.0),
-        (1.0, -t, 0.0),
-        (0.0, -1.0, t),
-        (0.0, 1.0, t),
-        (0.0, -1.0, -t),
-        (0.0, 1.0, -t),
-        (t, 0.0, -1.0),
-        (t, 0.0, 1.0),
-        (-t, 0.0, -1.0),
-        (-t, 0.0, 1.0),
-    ]
-    .iter()
-    .map(|&(x, y, z)| Vector3::new(x, y, z).normalize())
-    .collect();
-    let mut faces: Vec<[usize; 3]> = vec![
-        [0, 11, 5],
-        [0, 5, 1],
-        [0, 1, 7],
-        [0, 7, 10],
-        [0, 10, 11],
-        [1, 5, 9],
-        [5, 11, 4],
-        [11, 10, 2],
-        [10, 7, 6],
-        [7, 1, 8],
-        [3, 9, 4],
-        [3, 4, 2],
-        [3, 2, 6],
-        [3, 6, 8],
-        [3, 8, 9],
-        [4, 9, 5],
-        [2, 4, 11],
-        [6, 2, 10],
-        [8, 6, 7],
-        [9, 8, 1],
-    ];
-    for _ in 0..level {
-        let mut midpoints = std::collections::HashMap::new();
-        let mut mid = |a: usize, b: usize, points: &mut Vec<Vector3<f64>>| {
-            *midpoints.entry((a.min(b), a.max(b))).or_insert_with(|| {
-                points.push((points[a] + points[b]).normalize());
-                points.len() - 1
-            })
-        };
-        let mut next = Vec::with_capacity(faces.len() * 4);
-        for [a, b, c] in faces {
-            let (ab, bc, ca) = (mid(a, b, &mut points), mid(b, c, &mut points), mid(c, a, &mut points));
-            next.extend([[a, ab, ca], [b, bc, ab], [c, ca, bc], [ab, bc, ca]]);
-        }
-        faces = next;
-    }
-    points
+    // The same subdivision as the agent's own SRP grid.
+    soundmap_agent::srp::grid::SphereGrid::icosphere(level).points().to_vec()
 }
 
 /// The grid point nearest `d` (largest dot product).
