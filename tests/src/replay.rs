@@ -144,15 +144,7 @@ pub fn parse_robot(s: &str) -> Result<RobotRecording, String> {
     let need = |v: Option<String>, k: &str| {
         v.ok_or_else(|| format!("{k}: missing (id, audio or odas, poses and array are required)"))
     };
-    let number = |v: Option<String>, k: &str| -> Result<Option<f64>, String> {
-        v.map(|v| {
-            v.parse::<f64>()
-                .ok()
-                .filter(|x| x.is_finite())
-                .ok_or_else(|| format!("{k}: {v:?} is not a number"))
-        })
-        .transpose()
-    };
+    let number = robot_key_number;
     let count = |v: Option<String>, k: &str| -> Result<Option<u32>, String> {
         v.map(|v| {
             v.parse::<u32>()
@@ -561,6 +553,14 @@ async fn replay_async(args: &ReplayArgs) -> Result<RunRecord, SimError> {
         seed: None,
         commands: vec![],
     })
+}
+
+/// A `--robot` key's value as a finite number, if given (errors name the key).
+pub(crate) fn robot_key_number(v: Option<String>, k: &str) -> Result<Option<f64>, String> {
+    v.map(|v| {
+        v.parse::<f64>().ok().filter(|x| x.is_finite()).ok_or_else(|| format!("{k}: {v:?} is not a number"))
+    })
+    .transpose()
 }
 
 #[cfg(test)]

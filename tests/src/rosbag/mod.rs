@@ -66,15 +66,7 @@ pub fn robot_from_keys(mut kv: BTreeMap<String, String>) -> Result<RobotRecordin
     let need = |v: Option<String>, k: &str| {
         v.ok_or_else(|| format!("{k}: missing (id, audio_topic and array are required)"))
     };
-    let number = |v: Option<String>, k: &str| -> Result<Option<f64>, String> {
-        v.map(|v| {
-            v.parse::<f64>()
-                .ok()
-                .filter(|x| x.is_finite())
-                .ok_or_else(|| format!("{k}: {v:?} is not a number"))
-        })
-        .transpose()
-    };
+    let number = crate::replay::robot_key_number;
     let id = need(take("id"), "id")?;
     RobotId::parse(&id, "id").map_err(|e| e.to_string())?;
     let audio_topic = need(take("audio_topic"), "audio_topic")?;
