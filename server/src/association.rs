@@ -20,17 +20,26 @@
 //!
 //! **Silent sources.** Talkers pause, and a source not heard for a while
 //! (0.5 s) is predicted with a covariance that grows with the silence (its
-//! filter allows it to walk away). A robot-local track not yet claimed by any
-//! source is then as likely a new source as the silent one resuming, so it
-//! costs γ/2 more to give to a silent source: it must pass within χ² ≤ γ/2
-//! (≈ 2.1 σ at 0.99) rather than γ (3 σ). Worked numbers: a seated talker
-//! stops; 1 s later a second talker 1.5 m away starts, 23° away as one robot
-//! sees them at 2.5 m (a 1 m miss). The silent source's horizontal σ has
-//! grown to ≈ 0.4 m, so that robot's new track has NIS ≈ 1² / (0.4² + 0.09²) ≈ 6
-//! — inside γ = 9.21, and without the prior it would drag the silent
-//! source onto the new talker; with it, 6 + 4.6 > γ, the ray stays free and
-//! the new talker is born. The first talker resuming in place gives NIS ≈ 1:
-//! 1 + 4.6 < γ, it is still recognized.
+//! filter allows it to walk away). A robot-local track no source has claimed
+//! yet is then as likely a new source as the silent one resuming, and one
+//! robot's bearing cannot tell them apart: the grown covariance lets almost
+//! any bearing near the silent source through. So an unclaimed track is never
+//! given to a silent source by its NIS; it goes to births, and a birth —
+//! two robots' rays that meet in 3D — within `sources.reuse_radius_m` of the
+//! silent source's place resumes it with its id (the sound map's rule). Its
+//! place is where it was last *trusted*, not where one robot's rays may have
+//! dragged its filter before it fell silent. Worked numbers: a seated talker
+//! stops; 1.2 s later a second talker 1.6 m away speaks on, 34° away as one
+//! robot sees them at 2.9 m. The silent source's horizontal σ has grown to
+//! ≈ 0.8 m (q̃ = 0.5 m²/s³, 1.2 s, plus its velocity's uncertainty), so that
+//! robot's new track has NIS ≈ 4.5 against it — inside the gate γ = 9.21
+//! even with a γ/2 penalty. Given to it, it would drag the silent source onto
+//! the other talker and take its id there. Through a birth, the new talker's
+//! two-robot triangulation is 1.6 m from the silent source's place, beyond
+//! the 1 m reuse radius: it gets a new id, and the first talker resuming in
+//! place later takes back its own. A track that kept its robot-local id
+//! through the pause (the agent coasts tracks over short gaps) is still
+//! labelled, and resumes its source directly.
 //!
 //! **New sources (births).** Rays no source claims are paired across robots:
 //! every pair of two robots' unclaimed rays is triangulated, and a pair is a

@@ -181,6 +181,11 @@ impl SourceTracker {
         self.params.association_gate
     }
 
+    /// Why the current track was lost, if it was.
+    pub fn loss(&self) -> Option<LossReason> {
+        self.track.as_ref().and_then(|t| t.lost)
+    }
+
     /// True when there is no track or it is lost: initialize one.
     pub fn needs_track(&self) -> bool {
         self.track.as_ref().is_none_or(|t| t.lost.is_some())
@@ -333,7 +338,8 @@ impl SourceTracker {
         let (s, _) = track.buffer.latest();
         let rms = s.filter.predicted(now.seconds_since(s.stamp).max(0.0), &noise).position_rms_m();
         let last = s.last_update.unwrap_or(track.buffer.start());
-        let second = s.confirmation.second_robot().unwrap_or(track.buffer.start()).max(track.buffer.start());
+        let second =
+            s.confirmation.single_run_start().unwrap_or(track.buffer.start()).max(track.buffer.start());
         track.lost = check_loss(s.confirmation.is_confirmed(), now, last, second, rms, &rules);
     }
 

@@ -11,14 +11,20 @@
 //!    candidate made of the same robot-local tracks must recur in
 //!    `sources.birth_rounds` consecutive rounds before a source is born from its
 //!    triangulation. A source born within `sources.reuse_radius_m` of a
-//!    remembered one takes back its id: a talker who pauses and speaks again at
-//!    the same place keeps their id.
+//!    remembered one, or of a live one silent for 0.5 s (which it replaces),
+//!    takes back its id: a talker who pauses and speaks again at the same
+//!    place keeps their id. A source's place is where it was last trusted.
 //! 3. **Updates.** Every robot's observations are applied to the sources in
 //!    stamp order up to the robots' watermark (as the single-source tracker
 //!    does); the rays of each observation are assigned to sources jointly by
 //!    global nearest neighbour with a prior that holds each robot-local track
 //!    on the source it fed ([`crate::association`]). The assignments are
-//!    remembered as *labels* (robot, local track) → source.
+//!    remembered as *labels* (robot, local track) → source. A track without a
+//!    label is never given to a silent source (see [`crate::association`]).
+//!
+//! A source's track is lost after `single_robot_timeout_s` of rays from one
+//! robot alone; a silence before that robot's rays does not count (a talker
+//! heard again first by one robot after a pause is not a track being dragged).
 //! 4. **Estimates.** For each live source, the rays of the robots whose
 //!    aligned observation holds a track labelled with it are triangulated, and
 //!    the source's filtered state is published beside that triangulation.
@@ -63,6 +69,21 @@ struct MapSource {
     tracker: SourceTracker,
     first_heard: Stamp,
     last_heard: Stamp,
+    /// Where the source was when last trusted (two robots' rays, consistent
+    /// filter): its place for id reuse. One robot's rays alone can drag the
+    /// filter along that robot's bearing before the source is lost.
+    anchor: Option<Point3<f64>>,
+}
+
+impl MapSource {
+    /// The position that stands for this source when it is lost or silent.
+    fn place(&self) -> Option<Point3<f64>> {
+        self.anchor.or_else(|| self.tracker.estimate().map(|e| e.position_in_map))
+    }
+
+    fn is_silent(&self, at: Stamp) -> bool {
+        at - self.last_heard > SILENT_NS
+    }
 }
 
 /// A lost source kept for its id.
@@ -80,6 +101,13 @@ struct Remembered {
 struct Label {
     source: u64,
     last: Stamp,
+}
+
+/// Where a birth takes its id from.
+#[derive(Clone, Copy, Debug)]
+enum Reuse {
+    Remembered(usize),
+    Silent(usize),
 }
 
 /// An unclaimed ray, as births see it.
@@ -200,17 +228,17 @@ impl SoundMap {
             self.sources[i].tracker.maintain(now);
             if self.sources[i].tracker.needs_track() {
                 let s = self.sources.swap_remove(i);
-                if let Some(e) = s.tracker.estimate() {
+                if let (Some(e), Some(place)) = (s.tracker.estimate(), s.place()) {
                     self.remembered.push(Remembered {
                         id: s.id,
                         first_heard: s.first_heard,
-                        position_in_map: e.position_in_map,
+                        position_in_map: place,
                         last_heard: s.last_heard,
                         covariance: e.position_covariance(),
                     });
                 }
                 self.labels.retain(|_, l| l.source != s.id);
-                tracing::debug!(source = s.id, "source lost");
+                tracing::debug!(source = s.id, at_ns = now.as_ns(), reason = ?s.tracker.loss(), "source lost");
             } else {
                 i += 1;
             }
@@ -235,7 +263,9 @@ impl SoundMap {
                         Some(nis) if nis <= self.gate => match label {
                             Some(l) if l == s.id => nis - half,
                             Some(_) => nis + half,
-                            None if q.stamp - s.last_heard > SILENT_NS => nis + half,
+                            // A new robot-local track resumes a silent source
+                            // only through a birth at its place (see the module docs).
+                            None if s.is_silent(q.stamp) => f64::INFINITY,
                             None => nis,
                         },
                         _ => f64::INFINITY,
@@ -244,11 +274,22 @@ impl SoundMap {
             })
             .collect();
         for (k, j) in assign(&cost, self.gate).into_iter().enumerate() {
+            tracing::trace!(
+                at_ns = q.stamp.as_ns(),
+                robot = q.robot,
+                track = q.item[k].track_id,
+                source = j.map(|j| self.sources[j].id),
+                costs = ?cost[k],
+                "ray assigned"
+            );
             let Some(j) = j else { continue };
             let (ray, track) = (q.item[k].ray, q.item[k].track_id);
             let s = &mut self.sources[j];
             if matches!(s.tracker.update(q.stamp, q.robot, &ray), UpdateOutcome::Applied { .. }) {
                 s.last_heard = s.last_heard.max(q.stamp);
+                if let Some(e) = s.tracker.estimate().filter(|e| e.trusted) {
+                    s.anchor = Some(e.position_in_map);
+                }
                 self.labels.insert((q.robot, track), Label { source: s.id, last: q.stamp });
             }
         }
@@ -294,7 +335,7 @@ impl SoundMap {
         for i in chosen {
             let rounds = self.candidates.get(&members[i]).copied().unwrap_or(0) + 1;
             seen.insert(members[i].clone(), rounds);
-            if rounds >= self.config.birth_rounds && self.sources.len() < self.config.max_sources {
+            if rounds >= self.config.birth_rounds {
                 let (tri, newest) = &solutions[i];
                 self.birth(now, *newest, tri, &members[i]);
                 seen.remove(&members[i]);
@@ -338,7 +379,9 @@ impl SoundMap {
         }
         let tri = if rays.len() > 2 { triangulate(&rays, config) } else { pair };
         let point = usable(&tri, config)?;
-        let near_live = self.sources.iter().any(|s| {
+        // A silent source is no obstacle: a birth at its place resumes it.
+        let at = a.stamp.max(b.stamp);
+        let near_live = self.sources.iter().filter(|s| !s.is_silent(at)).any(|s| {
             s.tracker
                 .estimate()
                 .is_some_and(|e| (e.position_in_map - point).norm() < self.config.exclusion_radius_m)
@@ -363,20 +406,36 @@ impl SoundMap {
         }
         let point = solution.source_in_map;
         let mut first_heard = newest;
-        let reuse = self
-            .remembered
-            .iter()
-            .enumerate()
-            .filter(|(_, r)| (r.position_in_map - point).norm() <= self.config.reuse_radius_m)
-            .min_by(|a, b| {
-                (a.1.position_in_map - point).norm().total_cmp(&(b.1.position_in_map - point).norm())
-            })
-            .map(|(i, _)| i);
+        // The nearest within the reuse radius of the remembered sources and
+        // the live ones gone silent gives its id (a silent one is replaced).
+        let radius = self.config.reuse_radius_m;
+        let remembered =
+            self.remembered.iter().enumerate().map(|(i, r)| (Reuse::Remembered(i), r.position_in_map));
+        let silent = (self.sources.iter().enumerate())
+            .filter(|(_, s)| s.is_silent(newest))
+            .filter_map(|(i, s)| Some((Reuse::Silent(i), s.place()?)));
+        let reuse = remembered
+            .chain(silent)
+            .map(|(k, p)| (k, (p - point).norm()))
+            .filter(|(_, d)| *d <= radius)
+            .min_by(|a, b| a.1.total_cmp(&b.1))
+            .map(|(k, _)| k);
+        let full = self.sources.len() >= self.config.max_sources;
+        if full && !matches!(reuse, Some(Reuse::Silent(_))) {
+            return;
+        }
         let id = match reuse {
-            Some(i) => {
+            Some(Reuse::Remembered(i)) => {
                 let r = self.remembered.swap_remove(i);
                 first_heard = r.first_heard;
                 r.id
+            }
+            Some(Reuse::Silent(i)) => {
+                let s = self.sources.swap_remove(i);
+                self.labels.retain(|_, l| l.source != s.id);
+                first_heard = s.first_heard;
+                tracing::debug!(source = s.id, at_ns = newest.as_ns(), "silent source resumed");
+                s.id
             }
             None => {
                 self.next_id += 1;
@@ -387,8 +446,15 @@ impl SoundMap {
             self.labels.insert((robot, track), Label { source: id, last: now });
         }
         self.births += 1;
-        tracing::debug!(source = id, x = point.x, y = point.y, z = point.z, "source born");
-        self.sources.push(MapSource { id, tracker, first_heard, last_heard: newest });
+        tracing::debug!(
+            source = id,
+            at_ns = newest.as_ns(),
+            x = point.x,
+            y = point.y,
+            z = point.z,
+            "source born"
+        );
+        self.sources.push(MapSource { id, tracker, first_heard, last_heard: newest, anchor: None });
     }
 
     /// What each live source looks like at `stamp`: the aligned rays labelled

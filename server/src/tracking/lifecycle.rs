@@ -90,6 +90,10 @@ pub struct Confirmation {
     last: Option<(Stamp, u32)>,
     /// Stamp of the newest accepted update from a robot other than `last`'s.
     other: Option<Stamp>,
+    /// Stamp of the first update of the current run of updates from `last`'s
+    /// robot alone (a silence between two robots' updates is not one robot
+    /// feeding the track).
+    run_start: Option<Stamp>,
 }
 
 impl Default for Confirmation {
@@ -101,6 +105,7 @@ impl Default for Confirmation {
             confirmed: false,
             last: None,
             other: None,
+            run_start: None,
         }
     }
 }
@@ -117,6 +122,14 @@ impl Confirmation {
         self.other
     }
 
+    /// Stamp of the first accepted DoA of the newest one's robot since another
+    /// robot's: the track has been fed by that robot alone since then. Unlike
+    /// [`Self::second_robot`], a silence (no robot heard the source) before
+    /// the run does not count as single-robot feeding.
+    pub fn single_run_start(&self) -> Option<Stamp> {
+        self.run_start
+    }
+
     /// Whether a second robot's DoA was accepted within `window_ns` of `at`.
     pub fn is_supported(&self, at: Stamp, window_ns: i64) -> bool {
         self.other.is_some_and(|o| at - o <= window_ns)
@@ -125,10 +138,13 @@ impl Confirmation {
     /// Records an accepted update from `robot` at `stamp`, after which the
     /// position RMS is `position_rms_m`, and confirms the track if the rules hold.
     pub fn record(&mut self, stamp: Stamp, robot: u32, position_rms_m: f64, rules: &LifecycleRules) {
-        if let Some((t, r)) = self.last
-            && r != robot
-        {
-            self.other = Some(t);
+        match self.last {
+            Some((t, r)) if r != robot => {
+                self.other = Some(t);
+                self.run_start = Some(stamp);
+            }
+            Some(_) => {}
+            None => self.run_start = Some(stamp),
         }
         self.last = Some((stamp, robot));
         let m = rules.confirm_updates.clamp(1, MAX_CONFIRM_UPDATES);
@@ -149,9 +165,9 @@ impl Confirmation {
 }
 
 /// Whether a track should be lost at `now`: `last_accepted` is the stamp of its
-/// last accepted DoA (or its initialization), `second_robot` that of the last
-/// accepted DoA from a robot other than the newest one's (or the
-/// initialization), and `position_rms_m` its position RMS predicted to `now`.
+/// last accepted DoA (or its initialization), `second_robot` that of the first
+/// accepted DoA of the newest one's robot since another robot's (or the
+/// initialization; [`Confirmation::single_run_start`]), and `position_rms_m` its position RMS predicted to `now`.
 /// Divergence is checked first, then silence, then single-robot support.
 pub fn check_loss(
     confirmed: bool,
@@ -266,5 +282,29 @@ mod tests {
         }
         assert_eq!(c.second_robot(), Some(ms(50)));
         assert!(!c.is_supported(ms(1990), RULES.support_window_ns));
+        // Robot 0 alone since its first update after robot 1's last one.
+        assert_eq!(c.single_run_start(), Some(ms(60)));
+    }
+
+    #[test]
+    fn a_silence_is_not_single_robot_feeding() {
+        let mut c = Confirmation::default();
+        for k in 0..10 {
+            c.record(ms(k * 100), k as u32 % 2, 0.1, &RULES);
+        }
+        // Both robots until 0.9 s (robot 1 last), then 1.5 s of silence, then robot 0.
+        c.record(ms(2400), 0, 0.1, &RULES);
+        assert_eq!(c.single_run_start(), Some(ms(2400)));
+        let single = c.single_run_start().unwrap();
+        assert_eq!(check_loss(true, ms(2450), ms(2400), single, 0.3, &RULES), None);
+        // Robot 0 alone for 1.1 s after that: lost.
+        for k in 1..=11 {
+            c.record(ms(2400 + k * 100), 0, 0.1, &RULES);
+        }
+        let single = c.single_run_start().unwrap();
+        assert!(matches!(
+            check_loss(true, ms(3550), ms(3500), single, 0.3, &RULES),
+            Some(LossReason::SingleRobot { .. })
+        ));
     }
 }
