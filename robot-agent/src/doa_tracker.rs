@@ -45,6 +45,19 @@
 //! near 0.03 (0.033 at most over 10 s of white noise) and the
 //! hit-consistency rule still has to be met.
 //!
+//! Turning robots: tracks are kept in the array frame, and the array turns
+//! with the robot. Where the driver gives the base's orientation (SLAM, per
+//! hop; [`crate::pipeline::Pipeline::set_base_orientation`]), every track and
+//! candidate is re-expressed in the turned frame ([`DoaTracker::change_frame`])
+//! once the turn exceeds a dead band (1°, above SLAM's yaw jitter), so a source
+//! that stays put in the room keeps its track and id through a turn. Measured
+//! in `tests/tracking.rs`: a robot turning 60° and back at 120°/s with abrupt
+//! starts, a static source at 10 dB: 4 ids and 235 frames without exactly one
+//! track without the orientation; 1 id, median error 0.11° with it. In the
+//! `cocktail-active` scenario (three robots driven by the planner while two
+//! talkers and a fan play), seeds 1–2: ghosts fell from 0.58–0.70/s to
+//! 0.06–0.11/s and id switches from 19–24 to 3–6.
+//!
 //! Uncertainty: the measurement variance of each track is learnt from its
 //! innovations (so it follows the SNR and the array), and the reported σ is
 //! the filter's per-axis angular standard deviation. On free-field data it
@@ -56,7 +69,7 @@
 pub mod config;
 pub mod sphere_kf;
 
-use nalgebra::{Unit, Vector3};
+use nalgebra::{Rotation3, Unit, Vector3};
 
 use crate::error::AgentError;
 use crate::srp::PotentialSource;
@@ -187,6 +200,7 @@ impl DoaTracker {
             ("min_gate_deg", c.min_gate_deg),
             ("min_sigma_deg", c.min_sigma_deg),
             ("merge_deg", c.merge_deg),
+            ("rotation_deadband_deg", c.rotation_deadband_deg),
             ("diffuse_margin", c.diffuse_margin),
             ("noise_sigmas", c.noise_sigmas),
             ("report_max_silence_s", c.report_max_silence_s),
@@ -220,6 +234,20 @@ impl DoaTracker {
     /// `max(birth_min_coherence, diffuse(d) + diffuse_margin + noise_sigmas·σ)`.
     pub fn birth_threshold(&self, d: &Vector3<f64>) -> f64 {
         self.config.birth_min_coherence.max(self.noise.diffuse.at(d) + self.birth_margin)
+    }
+
+    /// The array turned: `new_from_old` maps directions in the array frame of
+    /// the previous frames to the array frame from now on. Every track and
+    /// birth candidate is re-expressed, so a source that stays put in the room
+    /// stays put for the tracker while the robot turns (see
+    /// [`crate::pipeline::Pipeline::set_base_orientation`]).
+    pub fn change_frame(&mut self, new_from_old: &Rotation3<f64>) {
+        for t in &mut self.tracks {
+            t.kf.change_frame(new_from_old);
+        }
+        for c in &mut self.candidates {
+            c.last = new_from_old * c.last;
+        }
     }
 
     /// Forgets every track and candidate (ids keep increasing).

@@ -8,8 +8,8 @@
 //! live JSON-lines feed, and the [`Link`] task drives the core, the stream to
 //! the coordinator and the navigator.
 
-use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
 use soundmap_proto::Stamp;
@@ -24,7 +24,7 @@ use crate::link::{Hop, Link, LinkInputs, LinkStats};
 use crate::navigator::JsonLinesNavigator;
 use crate::odas::{self, LiveStart, OdasTiming};
 use crate::pipeline::Pipeline;
-use crate::pose::{self, PoseTimeMapping, StampedPose};
+use crate::pose::{self, PoseBuffer, PoseTimeMapping, StampedPose};
 
 /// Blocks in the pool between the audio thread and the DSP thread (the bound of their channel).
 const AUDIO_BLOCKS: usize = 32;
@@ -54,8 +54,15 @@ pub struct LivePlan {
     core: Agent,
     hops: HopPlan,
     poses: PosePlan,
+    /// The poses the DSP thread reads the base's orientation from (see
+    /// [`Pipeline::set_base_orientation`]): the whole trajectory of a TUM
+    /// file, or the live feed's poses as they arrive.
+    orientations: Orientations,
     navigator: JsonLinesNavigator,
 }
+
+/// Poses shared with the DSP thread.
+type Orientations = Arc<Mutex<PoseBuffer>>;
 
 impl std::fmt::Debug for LivePlan {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
@@ -113,13 +120,18 @@ impl LivePlan {
             PoseSource::JsonlStdin => (PosePlan::Stdin, vec![]),
         };
         core_config.pose_buffer.capacity = core_config.pose_buffer.capacity.max(trajectory.len());
+        let mut orientations = PoseBuffer::new(format!("{cfg_name}: pose"), core_config.pose_buffer)?;
         let mut core = Agent::new(hello, core_config, &format!("{cfg_name}: pose"))?;
         if matches!(poses, PosePlan::Tum) {
+            for p in &trajectory {
+                orientations.push(p.clone())?;
+            }
             core.handle_trajectory(Stamp::now(), trajectory)?;
         }
+        let orientations = Arc::new(Mutex::new(orientations));
         let navigator =
             JsonLinesNavigator::open(&config.navigator.path, config.navigator.arrival_tolerance_m)?;
-        Ok(LivePlan { config, core, hops, poses, navigator })
+        Ok(LivePlan { config, core, hops, poses, orientations, navigator })
     }
 
     /// Runs the agent until its input ends (and everything is acknowledged) or
@@ -138,8 +150,8 @@ impl LivePlan {
     async fn run_async(self) -> Result<LinkStats, AgentError> {
         let stop = Arc::new(AtomicBool::new(false));
         let (hops_tx, hops_rx) = mpsc::channel::<Hop>(HOP_QUEUE);
-        let threads = start_hops(self.hops, hops_tx, stop.clone())?;
-        let poses_rx = start_poses(self.poses)?;
+        let threads = start_hops(self.hops, hops_tx, stop.clone(), self.orientations.clone())?;
+        let poses_rx = start_poses(self.poses)?.map(|rx| share_poses(rx, self.orientations));
         let inputs = LinkInputs { hops: hops_rx, poses: poses_rx };
         let (link, task) =
             Link::spawn(self.config.link.clone(), self.core, Box::new(self.navigator), inputs, DRAIN_TIMEOUT);
@@ -231,10 +243,11 @@ fn start_hops(
     plan: HopPlan,
     out: mpsc::Sender<Hop>,
     stop: Arc<AtomicBool>,
+    orientations: Orientations,
 ) -> Result<Option<Threads>, AgentError> {
     match plan {
         HopPlan::Own { source, pipeline, realtime } => {
-            return Ok(Some(spawn_dsp(source, pipeline, realtime, out, stop)));
+            return Ok(Some(spawn_dsp(source, pipeline, realtime, out, stop, orientations)));
         }
         HopPlan::OdasFile(frames) => {
             tokio::spawn(async move {
@@ -266,6 +279,24 @@ fn start_hops(
         }
     }
     Ok(None)
+}
+
+/// Passes the live poses on to the link, keeping a copy for the DSP thread.
+fn share_poses(
+    mut rx: mpsc::Receiver<StampedPose>,
+    orientations: Orientations,
+) -> mpsc::Receiver<StampedPose> {
+    let (tx, out) = mpsc::channel::<StampedPose>(1024);
+    tokio::spawn(async move {
+        while let Some(p) = rx.recv().await {
+            // Out-of-order poses are the core's to report; the copy skips them.
+            let _ = orientations.lock().unwrap_or_else(|e| e.into_inner()).push(p.clone());
+            if tx.send(p).await.is_err() {
+                return;
+            }
+        }
+    });
+    out
 }
 
 /// Starts the live pose feed, if any.
@@ -303,6 +334,7 @@ fn spawn_dsp(
     realtime: bool,
     out: mpsc::Sender<Hop>,
     stop: Arc<AtomicBool>,
+    orientations: Orientations,
 ) -> Threads {
     let n = source.hop_len() * source.channels();
     let (full_tx, full_rx) = std::sync::mpsc::sync_channel::<(Stamp, Vec<f32>)>(AUDIO_BLOCKS);
@@ -337,6 +369,14 @@ fn spawn_dsp(
         .name("dsp".into())
         .spawn(move || {
             while let Ok((stamp, block)) = full_rx.recv() {
+                // The pose at the hop (interpolated, else the newest), as in replay and simulation.
+                let pose = {
+                    let poses = orientations.lock().unwrap_or_else(|e| e.into_inner());
+                    poses.lookup(stamp).ok().or_else(|| poses.last().cloned())
+                };
+                if let Some(p) = pose {
+                    pipeline.set_base_orientation(&p.map_from_base.rotation);
+                }
                 let r = pipeline.process_hop(stamp, &block);
                 let hop = Hop { stamp: r.stamp, doas: r.confirmed_doas() };
                 let _ = free_tx.send(block);

@@ -10,6 +10,7 @@
 //! from the sample count). A frame's DoAs are stamped at the middle of the
 //! analysed frame: first sample of the frame + `frame_len/(2·fs)`.
 
+use nalgebra::UnitQuaternion;
 use soundmap_proto::Stamp;
 
 use crate::array::ArrayGeometry;
@@ -163,6 +164,13 @@ pub struct Pipeline {
     doa_sigma_floor_rad: f64,
     /// Longest silence of a reported track, s (see [`TrackerConfig::report_max_silence_s`]).
     report_max_silence_s: f64,
+    /// The array's orientation on the base.
+    base_from_array: UnitQuaternion<f64>,
+    /// The array's orientation in the map that the tracks are expressed in
+    /// (`None` until a pose is given: the tracks then stay in the array frame).
+    tracks_frame: Option<UnitQuaternion<f64>>,
+    /// See [`TrackerConfig::rotation_deadband_deg`] (rad).
+    rotation_deadband_rad: f64,
 }
 
 impl Pipeline {
@@ -207,7 +215,33 @@ impl Pipeline {
             stamp_offset_ns: (offset_samples * 1e9 / fs as f64).round() as i64,
             doa_sigma_floor_rad: floor.to_radians(),
             report_max_silence_s: config.tracker.report_max_silence_s,
+            base_from_array: array.base_from_array.rotation,
+            tracks_frame: None,
+            rotation_deadband_rad: config.tracker.rotation_deadband_deg.to_radians(),
         })
+    }
+
+    /// The base's orientation in the map (from SLAM) at the next hop. DoA
+    /// tracks live in the array frame, which turns with the robot: a robot
+    /// turning at 90°/s moves every bearing by 0.7° a hop, and a turn's start
+    /// and end are accelerations no constant-velocity track follows. Given
+    /// the orientation, the tracker re-expresses its tracks whenever the array
+    /// has turned by more than [`TrackerConfig::rotation_deadband_deg`] since
+    /// the last time, so a source that stays put in the room stays put for
+    /// the tracker. Drivers give the pose interpolated at the hop's stamp
+    /// where they have it, else the newest (the same rule live, in replay and
+    /// in simulation). Without it the tracks stay in the array frame.
+    pub fn set_base_orientation(&mut self, map_from_base: &UnitQuaternion<f64>) {
+        let map_from_array = map_from_base * self.base_from_array;
+        let Some(old) = self.tracks_frame else {
+            self.tracks_frame = Some(map_from_array);
+            return;
+        };
+        if old.angle_to(&map_from_array) > self.rotation_deadband_rad {
+            let new_from_old = (map_from_array.inverse() * old).to_rotation_matrix();
+            self.tracker.change_frame(&new_from_old);
+            self.tracks_frame = Some(map_from_array);
+        }
     }
 
     /// The σ floor of reported DoAs (rad), see [`PipelineConfig::doa_sigma_floor_deg`].
@@ -326,6 +360,7 @@ impl Pipeline {
     pub fn reset(&mut self) {
         self.stft.reset();
         self.tracker.reset();
+        self.tracks_frame = None;
         self.signatures.reset();
         self.result.potentials.clear();
         self.result.tracks.clear();

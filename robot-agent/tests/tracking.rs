@@ -282,3 +282,70 @@ fn same_input_same_output() {
     assert_eq!(a, b);
     assert!(a.iter().any(|f| !f.tracks.is_empty()));
 }
+
+/// A robot that turns in place, starting and stopping abruptly, while a source
+/// stays put in the room: in the array frame the source swings by 60° at
+/// 120°/s with steps in angular velocity. Given the base's orientation per hop
+/// ([`Pipeline::set_base_orientation`], 0.5° pose jitter as SLAM gives), the
+/// tracker keeps one id and follows the array-frame direction; the same audio
+/// without the orientation is printed for comparison.
+#[test]
+fn a_turning_robot_keeps_its_tracks_when_given_its_orientation() {
+    use nalgebra::{UnitQuaternion, Vector3 as V3};
+    use rand::RngExt;
+    let array = ArrayGeometry::load("16soundsusb-pioneer").unwrap();
+    let mics = synth::positions(&array);
+    // Yaw of the base: still, +60° at 120°/s, still, −60° back, still (seconds).
+    let yaw_deg = |t: f64| -> f64 {
+        match t {
+            t if t < 0.5 => 0.0,
+            t if t < 1.0 => 120.0 * (t - 0.5),
+            t if t < 1.5 => 60.0,
+            t if t < 2.0 => 60.0 - 120.0 * (t - 1.5),
+            _ => 0.0,
+        }
+    };
+    let source_in_room = unit(20.0, 25.0);
+    let base_at = |t: f64| UnitQuaternion::from_axis_angle(&V3::z_axis(), yaw_deg(t).to_radians());
+    let dir_at = move |t: f64| base_at(t).inverse() * source_in_room;
+    let mut rng = synth::rng(777);
+    let mut x = synth::moving_source(&mics, dir_at, FS, 2 * 16000 + 8000, &mut rng);
+    synth::add_sensor_noise(&mut x, 10.0, &mut rng);
+    let audio = synth::interleave(&x, 0.1);
+    for with_pose in [false, true] {
+        let mut p = pipeline(&array);
+        let block = p.hop_len() * p.channels();
+        let mut frames = Vec::new();
+        for (h, b) in audio.chunks_exact(block).enumerate() {
+            let t = h as f64 * p.hop_len() as f64 / FS;
+            if with_pose {
+                let jitter = 0.5f64.to_radians() * (rng.random::<f64>() - 0.5) * 2.0;
+                let pose = base_at(t) * UnitQuaternion::from_axis_angle(&V3::z_axis(), jitter);
+                p.set_base_orientation(&pose);
+            }
+            frames.push(p.process_hop(soundmap_proto::Stamp::ZERO.plus_secs(t), b).clone());
+        }
+        let seen = ids(&frames);
+        let confirmed = frames.iter().position(|f| f.tracks.iter().any(|t| t.confirmed)).unwrap();
+        let errors: Vec<f64> = frames[confirmed..]
+            .iter()
+            .flat_map(|f| {
+                f.tracks
+                    .iter()
+                    .map(|t| synth::angle_deg(&t.direction_in_array, &dir_at(f.stamp.as_secs_f64())))
+            })
+            .collect();
+        let (mean, median, p95) = synth::stats(&errors);
+        let lost = frames[confirmed..].iter().filter(|f| f.tracks.len() != 1).count();
+        println!(
+            "turning robot, orientation {}: ids {seen:?}, frames without exactly one track {lost}, \
+             error mean {mean:.3}° median {median:.3}° p95 {p95:.3}°",
+            if with_pose { "given" } else { "not given" }
+        );
+        if with_pose {
+            assert_eq!(seen.len(), 1, "ids {seen:?}");
+            assert_eq!(lost, 0, "track lost or duplicated");
+            assert!(median < 0.5 && p95 < 2.0, "median {median}, p95 {p95}");
+        }
+    }
+}

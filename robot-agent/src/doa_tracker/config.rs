@@ -56,6 +56,11 @@ pub struct TrackerConfig {
     pub report_max_silence_s: f64,
     /// Two tracks closer than this merge (the younger dies), degrees.
     pub merge_deg: f64,
+    /// Tracks follow the robot's turns (the pipeline re-expresses them when
+    /// the base's orientation from SLAM has turned by more than this since the
+    /// last re-expression), degrees. The dead band keeps a static robot's pose
+    /// jitter out of the tracks; a turn is followed within it.
+    pub rotation_deadband_deg: f64,
     /// Most tracks at once.
     pub max_tracks: usize,
 }
@@ -84,6 +89,7 @@ impl Default for TrackerConfig {
             coast_velocity_time_constant_s: 0.2,
             report_max_silence_s: 0.3,
             merge_deg: 5.0,
+            rotation_deadband_deg: 1.0,
             max_tracks: 8,
         }
     }

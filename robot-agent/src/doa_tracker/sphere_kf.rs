@@ -133,6 +133,14 @@ impl SphereKf {
         }
     }
 
+    /// Re-expresses the filter in another frame: `new_from_old` maps vectors
+    /// of the old frame to the new one (the array turned). The direction, its
+    /// tangent basis and so the velocity's coordinates and the covariance all
+    /// turn together, so nothing else changes.
+    pub fn change_frame(&mut self, new_from_old: &Rotation3<f64>) {
+        self.rotate(new_from_old);
+    }
+
     /// Rotates the direction and its basis, re-orthonormalizing.
     fn rotate(&mut self, r: &Rotation3<f64>) {
         self.d = (r * self.d).normalize();
@@ -159,6 +167,24 @@ mod tests {
         assert!(kf.d.angle(&at(499.0 * dt)) < 1e-5);
         assert!((kf.speed() - rate).abs() < 1e-3);
         assert!(kf.sigma() < 1e-3);
+    }
+
+    #[test]
+    fn a_frame_change_turns_the_state_rigidly() {
+        let d = Unit::new_normalize(Vector3::new(1.0, 0.2, 0.3));
+        let mut kf = SphereKf::new(&d, 1e-4, 1e-2);
+        kf.omega = Vector2::new(0.3, -0.1);
+        kf.p[(0, 1)] = 2e-5;
+        kf.p[(1, 0)] = 2e-5;
+        let world_velocity = kf.e1 * kf.omega.x + kf.e2 * kf.omega.y;
+        let z = Vector3::new(0.9, 0.3, 0.25).normalize();
+        let before = kf.mahalanobis2(&z, 1e-4);
+        let r = Rotation3::from_euler_angles(0.1, -0.2, 1.3);
+        kf.change_frame(&r);
+        assert!((kf.d - r * d.into_inner()).norm() < 1e-12);
+        let turned_velocity = kf.e1 * kf.omega.x + kf.e2 * kf.omega.y;
+        assert!((turned_velocity - r * world_velocity).norm() < 1e-12);
+        assert!((kf.mahalanobis2(&(r * z), 1e-4) - before).abs() < 1e-9);
     }
 
     #[test]

@@ -340,7 +340,13 @@ impl SimRobot {
                 }
             }
             on_audio(&self.hop);
-            let r = self.pipeline.process_hop(stamp_of(first_sample + (h * hop_len) as u64), &self.hop);
+            let first = stamp_of(first_sample + (h * hop_len) as u64);
+            // The SLAM pose at the hop (interpolated, else the newest), as live.
+            let poses = self.core.poses();
+            if let Some(p) = poses.lookup(first).ok().or_else(|| poses.last().cloned()) {
+                self.pipeline.set_base_orientation(&p.map_from_base.rotation);
+            }
+            let r = self.pipeline.process_hop(first, &self.hop);
             self.hops.push(Hop { stamp: r.stamp, doas: r.confirmed_doas() });
         }
         Ok(())
