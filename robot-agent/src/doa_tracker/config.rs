@@ -29,6 +29,13 @@ pub struct TrackerConfig {
     pub gate_chi2: f64,
     /// Association gate never narrower than this, degrees.
     pub min_gate_deg: f64,
+    /// Association gate never wider than this, degrees. A track's learnt
+    /// measurement variance grows in reverberation (and while two sources
+    /// alternate in its gate), and with it the χ² gate, until a track can
+    /// absorb the peaks of a second source 20–25° away, or jump to it when
+    /// its own source stops. Single-frame peaks of one source scatter by
+    /// ±5–10° in the rooms simulated here, so 12° keeps them.
+    pub max_gate_deg: f64,
     /// White angular-acceleration noise, rad²/s³ per axis.
     pub acceleration_noise: f64,
     /// Measurement σ per axis before a track has learnt its own, degrees.
@@ -71,14 +78,15 @@ impl Default for TrackerConfig {
             birth_min_coherence: 0.08,
             diffuse_margin: 0.03,
             noise_sigmas: 4.0,
-            birth_window_frames: 10,
-            birth_min_hits: 7,
+            birth_window_frames: 16,
+            birth_min_hits: 6,
             birth_gate_deg: 10.0,
             confirm_hits: 5,
-            confirm_window_frames: 12,
+            confirm_window_frames: 24,
             update_min_coherence: 0.08,
             gate_chi2: 13.8,
             min_gate_deg: 3.0,
+            max_gate_deg: 12.0,
             acceleration_noise: 0.05,
             measurement_sigma_deg: 2.0,
             min_measurement_sigma_deg: 0.02,

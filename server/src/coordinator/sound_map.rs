@@ -381,10 +381,19 @@ impl SoundMap {
         let point = usable(&tri, config)?;
         // A silent source is no obstacle: a birth at its place resumes it.
         let at = a.stamp.max(b.stamp);
+        // A live source the candidate is consistent with (within the exclusion
+        // radius, or within the 99 % χ² (3 dof) of their summed covariances)
+        // is the same source heard by tracks not yet labelled with it.
+        let tri_cov = tri.solution().and_then(|s| s.quality.covariance);
+        let same = chi2_quantile(3, 0.99);
         let near_live = self.sources.iter().filter(|s| !s.is_silent(at)).any(|s| {
-            s.tracker
-                .estimate()
-                .is_some_and(|e| (e.position_in_map - point).norm() < self.config.exclusion_radius_m)
+            s.tracker.estimate().is_some_and(|e| {
+                let d = e.position_in_map - point;
+                d.norm() < self.config.exclusion_radius_m
+                    || tri_cov
+                        .and_then(|c| (c + e.position_covariance()).try_inverse())
+                        .is_some_and(|inv| (d.transpose() * inv * d)[(0, 0)] <= same)
+            })
         });
         if near_live {
             return None;
@@ -454,7 +463,8 @@ impl SoundMap {
             z = point.z,
             "source born"
         );
-        self.sources.push(MapSource { id, tracker, first_heard, last_heard: newest, anchor: None });
+        // Two robots' rays that meet: its place until it is trusted.
+        self.sources.push(MapSource { id, tracker, first_heard, last_heard: newest, anchor: Some(point) });
     }
 
     /// What each live source looks like at `stamp`: the aligned rays labelled
