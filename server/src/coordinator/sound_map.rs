@@ -301,16 +301,29 @@ impl SoundMap {
 
     /// Candidate births from the unclaimed aligned rays (see the module docs).
     fn births(&mut self, now: Stamp, aligned: &[AlignedRays], config: &TriangulationConfig) {
+        // A ray a live source explains (within its gate) seeds no birth even
+        // before its observation is applied: births run before the batch's
+        // updates, and a source born last round has not yet labelled the
+        // other robots' tracks of it.
+        let explained = |stamp: Stamp, ray: &Ray| {
+            self.sources
+                .iter()
+                .filter(|s| !s.is_silent(stamp))
+                .any(|s| s.tracker.nis(stamp, ray).is_some_and(|nis| nis <= self.gate))
+        };
         let free: Vec<Free> = aligned
             .iter()
             .flat_map(|a| {
-                a.rays.iter().filter(|t| !self.claimed(a.robot, t.track_id)).map(move |t| Free {
-                    robot: a.robot,
-                    track: t.track_id,
-                    ray: t.ray,
-                    stamp: a.stamp,
-                    signature: t.signature.clone(),
-                })
+                a.rays
+                    .iter()
+                    .filter(|t| !self.claimed(a.robot, t.track_id) && !explained(a.stamp, &t.ray))
+                    .map(move |t| Free {
+                        robot: a.robot,
+                        track: t.track_id,
+                        ray: t.ray,
+                        stamp: a.stamp,
+                        signature: t.signature.clone(),
+                    })
             })
             .collect();
         let mut members: Vec<Vec<(u32, u64)>> = Vec::new();
