@@ -41,7 +41,10 @@
 //! through the pause (the agent coasts tracks over short gaps) is still
 //! labelled, and resumes its source directly.
 //!
-//! **New sources (births).** Rays no source claims are paired across robots:
+//! **New sources (births).** Rays no source claims (by label) or explains
+//! (within the gate of a live, non-silent source: births run before a batch's
+//! updates, so a source born last round has not yet labelled the other robots'
+//! tracks of it) are paired across robots:
 //! every pair of two robots' unclaimed rays is triangulated, and a pair is a
 //! candidate when its triangulation is usable: finite, in front of both
 //! arrays, rays that meet (residual χ² within its quantile), and accepted by
