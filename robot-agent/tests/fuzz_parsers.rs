@@ -243,12 +243,10 @@ proptest! {
         // Fed in pieces, as a socket delivers it.
         let mut parser = SstParser::new();
         for piece in bytes.chunks(chunk).chain(std::iter::once(&junk[..])) {
-            for f in parser.feed(piece) {
-                if let Ok(f) = f {
-                    if let Ok(frame) = f.to_frame(&timing()) {
-                        for d in &frame.doas {
-                            prop_assert!((d.direction_in_array.norm() - 1.0).abs() < 1e-9);
-                        }
+            for f in parser.feed(piece).into_iter().flatten() {
+                if let Ok(frame) = f.to_frame(&timing()) {
+                    for d in &frame.doas {
+                        prop_assert!((d.direction_in_array.norm() - 1.0).abs() < 1e-9);
                     }
                 }
             }
