@@ -436,6 +436,8 @@ impl CoordinatorConfig {
         self.server.validate().map_err(|e| invalid_key(path, e.within("server")))?;
         self.state.validate().map_err(|e| invalid_key(path, e.within("state")))?;
         self.foxglove.validate().map_err(|e| invalid_key(path, e.within("foxglove")))?;
+        let closed = self.auth.required || self.auth.has_credentials() || self.tls.client_ca.is_some();
+        self.foxglove.validate_access(closed).map_err(|e| invalid_key(path, e.within("foxglove")))?;
         self.validate_positioning(path)?;
         Ok(())
     }

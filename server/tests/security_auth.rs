@@ -1,7 +1,8 @@
 //! Who may do what, over real gRPC on loopback: once any credential is
 //! configured nothing is anonymous (robot link and monitoring alike), roles
 //! separate reading from control, and a robot id that has a token cannot be
-//! taken by a client without it, even with `required = false`.
+//! taken by a client without it, even with `required = false`. The Prometheus
+//! endpoint and gRPC reflection answer only operators that may read.
 
 mod common;
 
@@ -122,4 +123,76 @@ fn duplicate_tokens_and_clashing_names_are_config_errors() {
     )
     .unwrap();
     assert_eq!(ok.auth.operators["ops"].role, Role::Read);
+}
+
+/// `GET /metrics` over plain HTTP with an optional bearer token: the status code.
+async fn scrape(addr: std::net::SocketAddr, token: Option<&str>) -> u16 {
+    use tokio::io::{AsyncReadExt, AsyncWriteExt};
+    let mut s = tokio::net::TcpStream::connect(addr).await.unwrap();
+    let auth = token.map_or(String::new(), |t| format!("Authorization: Bearer {t}\r\n"));
+    let request = format!("GET /metrics HTTP/1.1\r\nHost: soundmap\r\n{auth}Connection: close\r\n\r\n");
+    s.write_all(request.as_bytes()).await.unwrap();
+    let mut reply = String::new();
+    s.read_to_string(&mut reply).await.unwrap();
+    reply.split_whitespace().nth(1).and_then(|c| c.parse().ok()).unwrap_or(0)
+}
+
+/// One reflection request (list services) with an optional bearer token.
+async fn list_services(addr: std::net::SocketAddr, token: Option<&str>) -> Result<(), tonic::Status> {
+    use tonic_reflection::pb::v1::server_reflection_client::ServerReflectionClient;
+    use tonic_reflection::pb::v1::{ServerReflectionRequest, server_reflection_request::MessageRequest};
+    let channel =
+        tonic::transport::Endpoint::from_shared(format!("http://{addr}")).unwrap().connect().await.unwrap();
+    let mut client = ServerReflectionClient::new(channel);
+    let request = ServerReflectionRequest {
+        host: String::new(),
+        message_request: Some(MessageRequest::ListServices(String::new())),
+    };
+    let mut replies = client
+        .server_reflection_info(with_token(futures::stream::iter([request]), token))
+        .await?
+        .into_inner();
+    replies.message().await?.expect("a reply");
+    Ok(())
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn metrics_and_reflection_need_a_reader_once_credentials_exist() {
+    let mut closed = config();
+    closed.metrics.listen = Some("127.0.0.1:0".parse().unwrap());
+    let (coordinator, _clock) = start(closed).await;
+    let metrics = coordinator.metrics_addr.expect("metrics served");
+    assert_eq!(scrape(metrics, None).await, 401);
+    assert_eq!(scrape(metrics, Some("no-such-token-anywhere")).await, 401);
+    assert_eq!(scrape(metrics, Some(ROBOT_A)).await, 403);
+    assert_eq!(scrape(metrics, Some(READER)).await, 200);
+    assert_eq!(scrape(metrics, Some(CONTROLLER)).await, 200);
+    let addr = coordinator.local_addr;
+    assert_eq!(list_services(addr, None).await.unwrap_err().code(), Code::Unauthenticated);
+    assert_eq!(list_services(addr, Some(ROBOT_A)).await.unwrap_err().code(), Code::PermissionDenied);
+    list_services(addr, Some(READER)).await.unwrap();
+    coordinator.shutdown().await.unwrap();
+
+    // With no credential configured both stay open, as before.
+    let mut open_config = CoordinatorConfig::default();
+    open_config.metrics.listen = Some("127.0.0.1:0".parse().unwrap());
+    let (coordinator, _clock) = start(open_config).await;
+    assert_eq!(scrape(coordinator.metrics_addr.unwrap(), None).await, 200);
+    list_services(coordinator.local_addr, None).await.unwrap();
+    coordinator.shutdown().await.unwrap();
+}
+
+#[test]
+fn an_anonymous_live_view_stays_on_loopback_once_credentials_exist() {
+    let parse =
+        |text: &str| CoordinatorConfig::from_toml(text, Path::new("c.toml")).map_err(|e| e.to_string());
+    let tokens = "[auth.tokens]\nr1 = \"token-of-robot-r1-01\"\n";
+    let e = parse(&format!("{tokens}[foxglove]\nlisten = \"0.0.0.0:8765\"\n")).unwrap_err();
+    assert!(e.starts_with("c.toml: foxglove.listen: "), "{e}");
+    assert!(e.contains("allow_anonymous_viewers"), "{e}");
+    parse(&format!("{tokens}[foxglove]\nlisten = \"127.0.0.1:8765\"\n")).unwrap();
+    parse(&format!("{tokens}[foxglove]\nlisten = \"0.0.0.0:8765\"\nallow_anonymous_viewers = true\n"))
+        .unwrap();
+    // Without credentials nothing is protected, and the view may listen anywhere.
+    parse("[foxglove]\nlisten = \"0.0.0.0:8765\"\n").unwrap();
 }

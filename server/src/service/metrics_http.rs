@@ -1,12 +1,18 @@
 //! `GET /metrics`: the Prometheus endpoint (`--metrics ADDR`, `[metrics] listen`).
 //!
 //! A plain HTTP/1.1 server (hyper, already under tonic) on its own socket, so
-//! a scraper needs neither gRPC nor the services' credentials: it serves
-//! counters and states, no positions. Each scrape asks the coordinator task
+//! a scraper needs no gRPC: it serves counters and states, no positions. Each scrape asks the coordinator task
 //! for its snapshot (as `GetState` does, waiting at most [`STATE_TIMEOUT`]; a
 //! busy coordinator yields `soundmap_up 0` and the event series only) and
 //! answers with [`super::telemetry::Telemetry::render`] as
 //! `application/openmetrics-text`. Other paths get 404, other methods 405.
+//!
+//! When any credential is configured (the coordinator is closed, see
+//! [`super::auth`]), a scrape needs an operator's token with the read role,
+//! as `Authorization: Bearer TOKEN` (Prometheus: `authorization: { credentials:
+//! TOKEN }` in the scrape config); without one it gets 401, with a robot's
+//! token 403. Counters name robots and say what they do, which is not for
+//! anyone on the network once the fleet has credentials.
 
 use std::convert::Infallible;
 use std::sync::Arc;
@@ -22,8 +28,11 @@ use tokio::net::TcpListener;
 use tokio::sync::{broadcast, mpsc, oneshot, watch};
 
 use super::actor;
+use super::auth::Authenticator;
 use super::metrics::Metrics;
 use super::telemetry::ScrapeState;
+use crate::config::Role;
+use crate::error::ServerError;
 
 /// Longest a scrape waits for the coordinator's snapshot.
 pub const STATE_TIMEOUT: Duration = Duration::from_secs(2);
@@ -39,6 +48,8 @@ pub struct MetricsEndpoint {
     pub requests: mpsc::Sender<actor::Request>,
     /// The estimates channel, whose receivers are the open watchers.
     pub estimates: broadcast::Sender<Arc<wire::SourceEstimate>>,
+    /// Who may scrape.
+    pub auth: Authenticator,
 }
 
 impl MetricsEndpoint {
@@ -91,6 +102,20 @@ impl MetricsEndpoint {
         }
         if req.method() != Method::GET && req.method() != Method::HEAD {
             return reply(StatusCode::METHOD_NOT_ALLOWED, "text/plain", "use GET\n".into());
+        }
+        let authorization = req.headers().get(hyper::header::AUTHORIZATION).map(|v| v.as_bytes());
+        if let Err(e) = self.auth.authorize_http(authorization, Role::Read) {
+            let status = match e {
+                ServerError::PermissionDenied(_) => StatusCode::FORBIDDEN,
+                _ => StatusCode::UNAUTHORIZED,
+            };
+            let mut response = reply(status, "text/plain", format!("{e}\n"))?;
+            if status == StatusCode::UNAUTHORIZED {
+                response
+                    .headers_mut()
+                    .insert(hyper::header::WWW_AUTHENTICATE, "Bearer".parse().expect("a header"));
+            }
+            return Ok(response);
         }
         let state = self.state().await;
         let scrape = ScrapeState {

@@ -25,6 +25,7 @@ use soundmap_proto::wire::robot_link_server::RobotLinkServer;
 use tokio::net::TcpListener;
 use tokio::sync::{broadcast, mpsc, oneshot};
 use tokio::task::JoinHandle;
+use tonic::service::interceptor::InterceptedService;
 
 pub use metrics::{LatencyHistogram, Metrics};
 
@@ -163,7 +164,7 @@ pub async fn start(
     let link = robot_link::RobotLinkService::new(&config, requests.clone(), clock.clone(), stop_rx.clone())
         .with_bounds(&config.server, metrics.clone(), ratelog.clone());
     let monitoring = monitoring::MonitoringService::new(requests.clone(), estimates.clone(), stop_rx.clone())
-        .with_auth(authenticator);
+        .with_auth(authenticator.clone());
     let ticker = match config.liveness.tick_ms {
         0 => None,
         ms => {
@@ -179,11 +180,21 @@ pub async fn start(
         .spawn(move || actor.run(requests_rx))
         .map_err(|source| ServerError::Io { path: "<coordinator thread>".into(), source })?;
     let metrics_addr = match config.metrics.listen {
-        Some(addr) => Some(start_metrics(addr, &metrics, &requests, &estimates, stop_rx.clone()).await?),
+        Some(addr) => Some(
+            start_metrics(addr, &metrics, &requests, &estimates, authenticator.clone(), stop_rx.clone())
+                .await?,
+        ),
         None => None,
     };
-    let reflection_v1 = reflection().build_v1().map_err(reflection_error)?;
-    let reflection_v1alpha = reflection().build_v1alpha().map_err(reflection_error)?;
+    // Reflection answers whoever may read the monitoring service.
+    let reflection_v1 = InterceptedService::new(
+        reflection().build_v1().map_err(reflection_error)?,
+        read_role(authenticator.clone()),
+    );
+    let reflection_v1alpha = InterceptedService::new(
+        reflection().build_v1alpha().map_err(reflection_error)?,
+        read_role(authenticator),
+    );
     let (health_reporter, health) = tonic_health::server::health_reporter();
     health_reporter.set_serving::<RobotLinkServer<robot_link::RobotLinkService>>().await;
     health_reporter.set_serving::<MonitoringServer<monitoring::MonitoringService>>().await;
@@ -217,12 +228,24 @@ pub async fn start(
     })
 }
 
+/// An interceptor that lets through calls an operator with the read role (or,
+/// with no credential configured, anyone) may make.
+fn read_role(
+    auth: auth::Authenticator,
+) -> impl FnMut(tonic::Request<()>) -> Result<tonic::Request<()>, tonic::Status> + Clone {
+    move |request| {
+        auth.authorize_operator(&request, crate::config::Role::Read).map_err(|e| status::to_status(&e))?;
+        Ok(request)
+    }
+}
+
 /// Binds `addr` and serves the Prometheus endpoint there until `stop`.
 async fn start_metrics(
     addr: SocketAddr,
     metrics: &Arc<Metrics>,
     requests: &mpsc::Sender<actor::Request>,
     estimates: &broadcast::Sender<Arc<wire::SourceEstimate>>,
+    auth: auth::Authenticator,
     stop: tokio::sync::watch::Receiver<bool>,
 ) -> Result<SocketAddr, ServerError> {
     let io = |source| ServerError::Io { path: format!("[metrics] listen {addr}").into(), source };
@@ -232,6 +255,7 @@ async fn start_metrics(
         metrics: metrics.clone(),
         requests: requests.clone(),
         estimates: estimates.clone(),
+        auth,
     };
     tokio::spawn(endpoint.serve(listener, stop));
     tracing::info!("Prometheus metrics at http://{bound}/metrics");

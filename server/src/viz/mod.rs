@@ -46,11 +46,17 @@ pub struct FoxgloveConfig {
     pub listen: Option<SocketAddr>,
     /// Messages queued per viewer before its oldest are dropped, in [1, 1 000 000]. Default 1024.
     pub backlog_messages: usize,
+    /// The live view has no authentication of its own (a Foxglove WebSocket
+    /// client sends no credential): when the coordinator has credentials
+    /// (`[auth]`, or mutual TLS), `listen` must be a loopback address (reach
+    /// it through an SSH tunnel or an authenticating proxy) unless this says
+    /// that anyone who can reach the address may watch. Default false.
+    pub allow_anonymous_viewers: bool,
 }
 
 impl Default for FoxgloveConfig {
     fn default() -> Self {
-        FoxgloveConfig { listen: None, backlog_messages: 1024 }
+        FoxgloveConfig { listen: None, backlog_messages: 1024, allow_anonymous_viewers: false }
     }
 }
 
@@ -67,6 +73,25 @@ impl FoxgloveConfig {
             ));
         }
         Ok(())
+    }
+
+    /// With credentials configured (`closed`), an anonymous live view only
+    /// on loopback unless `allow_anonymous_viewers`.
+    pub fn validate_access(&self, closed: bool) -> Result<(), ValidationError> {
+        match self.listen {
+            Some(addr) if closed && !addr.ip().is_loopback() && !self.allow_anonymous_viewers => {
+                Err(ValidationError::new(
+                    "listen",
+                    soundmap_proto::Problem::Invalid(format!(
+                        "{addr} is reachable from the network, and the live view has no authentication \
+                         while the coordinator requires credentials: listen on loopback (e.g. \
+                         127.0.0.1:{}) and reach it through a tunnel, or set allow_anonymous_viewers = true",
+                        addr.port()
+                    )),
+                ))
+            }
+            _ => Ok(()),
+        }
     }
 }
 

@@ -205,9 +205,29 @@ impl Authenticator {
         }
     }
 
+    /// May a plain HTTP request with this `Authorization` header value (the
+    /// metrics endpoint) do what needs `role`? Tokens only (the endpoint has no
+    /// TLS); anonymous only when no credential is configured.
+    pub fn authorize_http(&self, authorization: Option<&[u8]>, role: Role) -> Result<(), ServerError> {
+        let who = match authorization {
+            Some(value) => Some(self.by_token(value)?),
+            None if self.closed => {
+                return Err(ServerError::Unauthenticated(
+                    "authorization: missing (expected \"Bearer TOKEN\" of an operator)".into(),
+                ));
+            }
+            None => None,
+        };
+        self.operator_may(who, role)
+    }
+
     /// May the call's credentials do what needs `role`?
     pub fn authorize_operator<T>(&self, request: &Request<T>, role: Role) -> Result<(), ServerError> {
-        match self.identify(request)? {
+        self.operator_may(self.identify(request)?, role)
+    }
+
+    fn operator_may(&self, who: Option<Principal>, role: Role) -> Result<(), ServerError> {
+        match who {
             None => Ok(()),
             Some(Principal::Operator { role: has, .. }) if has >= role => Ok(()),
             Some(p) => Err(ServerError::PermissionDenied(format!(
