@@ -369,14 +369,7 @@ fn spawn_dsp(
         .name("dsp".into())
         .spawn(move || {
             while let Ok((stamp, block)) = full_rx.recv() {
-                // The pose at the hop (interpolated, else the newest), as in replay and simulation.
-                let pose = {
-                    let poses = orientations.lock().unwrap_or_else(|e| e.into_inner());
-                    poses.lookup(stamp).ok().or_else(|| poses.last().cloned())
-                };
-                if let Some(p) = pose {
-                    pipeline.set_base_orientation(&p.map_from_base.rotation);
-                }
+                pipeline.follow_poses(&orientations.lock().unwrap_or_else(|e| e.into_inner()), stamp);
                 let r = pipeline.process_hop(stamp, &block);
                 let hop = Hop { stamp: r.stamp, doas: r.confirmed_doas() };
                 let _ = free_tx.send(block);

@@ -16,6 +16,7 @@ use soundmap_proto::Stamp;
 use crate::array::ArrayGeometry;
 use crate::doa_tracker::DoaTracker;
 use crate::error::AgentError;
+use crate::pose::PoseBuffer;
 use crate::signature::{SignatureLayout, Signatures};
 use crate::srp::Srp;
 use crate::stft::{Stft, Window};
@@ -228,9 +229,8 @@ impl Pipeline {
     /// the orientation, the tracker re-expresses its tracks whenever the array
     /// has turned by more than [`TrackerConfig::rotation_deadband_deg`] since
     /// the last time, so a source that stays put in the room stays put for
-    /// the tracker. Drivers give the pose interpolated at the hop's stamp
-    /// where they have it, else the newest (the same rule live, in replay and
-    /// in simulation). Without it the tracks stay in the array frame.
+    /// the tracker. Drivers call it through [`Pipeline::follow_poses`].
+    /// Without it the tracks stay in the array frame.
     pub fn set_base_orientation(&mut self, map_from_base: &UnitQuaternion<f64>) {
         let map_from_array = map_from_base * self.base_from_array;
         let Some(old) = self.tracks_frame else {
@@ -241,6 +241,16 @@ impl Pipeline {
             let new_from_old = (map_from_array.inverse() * old).to_rotation_matrix();
             self.tracker.change_frame(&new_from_old);
             self.tracks_frame = Some(map_from_array);
+        }
+    }
+
+    /// [`Pipeline::set_base_orientation`] from the SLAM poses the agent holds,
+    /// for the hop whose first sample is at `first_sample`: the pose
+    /// interpolated there, else the newest; nothing without poses. Live, replay
+    /// and simulation all call this, so they follow turns by one rule.
+    pub fn follow_poses(&mut self, poses: &PoseBuffer, first_sample: Stamp) {
+        if let Some(p) = poses.lookup(first_sample).ok().or_else(|| poses.last().cloned()) {
+            self.set_base_orientation(&p.map_from_base.rotation);
         }
     }
 

@@ -257,6 +257,12 @@ impl AuthConfig {
     pub fn has_credentials(&self) -> bool {
         !self.tokens.is_empty() || !self.operators.is_empty()
     }
+
+    /// Whether no call may be anonymous: `required`, any credential, or
+    /// client certificates (`tls.client_ca`).
+    pub fn is_closed(&self, tls: &TlsConfig) -> bool {
+        self.required || self.has_credentials() || tls.client_ca.is_some()
+    }
 }
 
 /// `[auth.operators.NAME]`.
@@ -436,7 +442,7 @@ impl CoordinatorConfig {
         self.server.validate().map_err(|e| invalid_key(path, e.within("server")))?;
         self.state.validate().map_err(|e| invalid_key(path, e.within("state")))?;
         self.foxglove.validate().map_err(|e| invalid_key(path, e.within("foxglove")))?;
-        let closed = self.auth.required || self.auth.has_credentials() || self.tls.client_ca.is_some();
+        let closed = self.auth.is_closed(&self.tls);
         self.foxglove.validate_access(closed).map_err(|e| invalid_key(path, e.within("foxglove")))?;
         self.validate_positioning(path)?;
         Ok(())

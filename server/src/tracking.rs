@@ -338,9 +338,9 @@ impl SourceTracker {
         let (s, _) = track.buffer.latest();
         let rms = s.filter.predicted(now.seconds_since(s.stamp).max(0.0), &noise).position_rms_m();
         let last = s.last_update.unwrap_or(track.buffer.start());
-        let second =
+        let single_since =
             s.confirmation.single_run_start().unwrap_or(track.buffer.start()).max(track.buffer.start());
-        track.lost = check_loss(s.confirmation.is_confirmed(), now, last, second, rms, &rules);
+        track.lost = check_loss(s.confirmation.is_confirmed(), now, last, single_since, rms, &rules);
     }
 
     /// The estimate at the newest DoA's stamp (or the initialization); `None` without a track.

@@ -305,11 +305,7 @@ impl Replayed {
         let first = self.next.expect("a hop is left");
         let (now, stamp, doas) = match &mut self.hops {
             Hops::Audio { pipeline, hop, .. } => {
-                // The SLAM pose at the hop (interpolated, else the newest), as live.
-                let poses = self.core.poses();
-                if let Some(p) = poses.lookup(first).ok().or_else(|| poses.last().cloned()) {
-                    pipeline.set_base_orientation(&p.map_from_base.rotation);
-                }
+                pipeline.follow_poses(self.core.poses(), first);
                 let result = pipeline.process_hop(first, hop);
                 let (stamp, doas) = (result.stamp, result.confirmed_doas());
                 let block = BLOCK_LEN as u64;

@@ -165,15 +165,16 @@ impl Confirmation {
 }
 
 /// Whether a track should be lost at `now`: `last_accepted` is the stamp of its
-/// last accepted DoA (or its initialization), `second_robot` that of the first
+/// last accepted DoA (or its initialization), `single_since` that of the first
 /// accepted DoA of the newest one's robot since another robot's (or the
-/// initialization; [`Confirmation::single_run_start`]), and `position_rms_m` its position RMS predicted to `now`.
+/// initialization; [`Confirmation::single_run_start`]), and `position_rms_m`
+/// its position RMS predicted to `now`.
 /// Divergence is checked first, then silence, then single-robot support.
 pub fn check_loss(
     confirmed: bool,
     now: Stamp,
     last_accepted: Stamp,
-    second_robot: Stamp,
+    single_since: Stamp,
     position_rms_m: f64,
     rules: &LifecycleRules,
 ) -> Option<LossReason> {
@@ -186,7 +187,7 @@ pub fn check_loss(
         return Some(LossReason::Silent { silent_s });
     }
     // Span of DoAs from one robot only, up to the newest accepted one.
-    let single_s = last_accepted.seconds_since(second_robot);
+    let single_s = last_accepted.seconds_since(single_since);
     (confirmed && single_s > rules.single_robot_timeout_s).then_some(LossReason::SingleRobot { single_s })
 }
 

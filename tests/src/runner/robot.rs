@@ -341,11 +341,7 @@ impl SimRobot {
             }
             on_audio(&self.hop);
             let first = stamp_of(first_sample + (h * hop_len) as u64);
-            // The SLAM pose at the hop (interpolated, else the newest), as live.
-            let poses = self.core.poses();
-            if let Some(p) = poses.lookup(first).ok().or_else(|| poses.last().cloned()) {
-                self.pipeline.set_base_orientation(&p.map_from_base.rotation);
-            }
+            self.pipeline.follow_poses(self.core.poses(), first);
             let r = self.pipeline.process_hop(first, &self.hop);
             self.hops.push(Hop { stamp: r.stamp, doas: r.confirmed_doas() });
         }

@@ -101,8 +101,7 @@ impl Authenticator {
             }
             operators.push((name.clone(), op.role));
         }
-        let closed = auth.required || auth.has_credentials() || tls.client_ca.is_some();
-        Authenticator { closed, tokens, operators }
+        Authenticator { closed: auth.is_closed(tls), tokens, operators }
     }
 
     /// Whether calls need a credential.
