@@ -9,6 +9,7 @@
 //! - [`monitoring`]: domain types of the `Monitoring` service (liveness,
 //!   planner status, active positioning) and their wire conversions.
 //! - [`Stamp`]: the fleet timebase (Unix time in nanoseconds).
+//! - [`ratelog`]: rate-limited warnings ([`warn_limited!`]) for both sides.
 //!
 //! Frames, units and time conventions are those of the `.proto` files: `map`,
 //! `base`, `array` frames; SI units; transforms named `a_from_b`.
@@ -17,6 +18,7 @@ pub mod error;
 pub mod geometry;
 pub mod messages;
 pub mod monitoring;
+pub mod ratelog;
 pub mod robot_id;
 pub mod stamp;
 

@@ -50,6 +50,10 @@ pub trait AudioSource: Send + std::fmt::Debug {
     /// scale) with the next block and returns the stamp of its first sample, or
     /// `None` at the end of the input. Does not allocate.
     fn next_block(&mut self, out: &mut [f32]) -> Result<Option<Stamp>, AgentError>;
+    /// Frames in the whole input, where it is known before reading (files).
+    fn frames_total(&self) -> Option<u64> {
+        None
+    }
 }
 
 /// Sample encodings of raw PCM, as ODAS names them in its `raw` section.

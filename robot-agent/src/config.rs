@@ -72,7 +72,8 @@ pub struct AudioConfig {
     pub input: AudioInput,
     /// Input channel of each array microphone, when not the identity.
     pub channel_map: Option<Vec<usize>>,
-    /// Time of sample 0; `None`: when the agent starts reading.
+    /// Time of sample 0; `None`: when the agent starts reading (`realtime`),
+    /// or so that the file ends then (`asap`: no stamp runs ahead of the clock).
     pub start: Option<Stamp>,
     /// For files: feed blocks at the pace of their stamps (`true`) or as fast as possible.
     pub realtime: bool,
@@ -87,9 +88,14 @@ pub struct OdasConfig {
     pub hop_len: u32,
     /// ODAS's `general.samplerate.mu`, Hz.
     pub sample_rate_hz: u32,
-    /// Time of ODAS's first sample; `None`: anchored when the first object arrives (socket)
-    /// or when the agent starts (file).
+    /// Time of ODAS's first sample; `None`: see [`crate::odas`]'s clock rule
+    /// (socket and followed file: anchored to the agent's clock when objects
+    /// first arrive; file read `realtime`: the agent's start; `asap`: placed so
+    /// that the recording ends when the agent starts).
     pub start: Option<Stamp>,
+    /// For a file that is not followed: send hops at the pace of their stamps
+    /// (`true`) or as fast as possible (`pace = "asap"`).
+    pub realtime: bool,
 }
 
 /// Where ODAS's SST JSON comes from.
@@ -98,7 +104,12 @@ pub enum OdasInput {
     /// Listen on this address (ODAS connects to it).
     Listen(SocketAddr),
     /// Read a file written by ODAS's file sink.
-    File(PathBuf),
+    File {
+        /// The file.
+        path: PathBuf,
+        /// Keep reading as ODAS appends to it (`follow = true`), until stopped.
+        follow: bool,
+    },
 }
 
 /// `[pose]`.

@@ -41,3 +41,8 @@ pub mod srp;
 pub mod stft;
 
 pub use error::AgentError;
+
+/// The agent's rate-limited warnings (one line per kind per 10 s, with the
+/// count of those folded into it): a flood of bad input cannot flood the log.
+pub(crate) static WARNINGS: std::sync::LazyLock<soundmap_proto::ratelog::RateLog> =
+    std::sync::LazyLock::new(|| soundmap_proto::ratelog::RateLog::new(std::time::Duration::from_secs(10)));

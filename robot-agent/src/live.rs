@@ -35,9 +35,20 @@ const DRAIN_TIMEOUT: Duration = Duration::from_secs(10);
 
 /// Where hops will come from, prepared (files opened, sockets bound).
 enum HopPlan {
-    Own { source: Box<dyn AudioSource>, pipeline: Box<Pipeline>, realtime: bool },
-    OdasFile(Vec<odas::OdasFrame>),
+    Own { source: Box<dyn AudioSource>, pipeline: Box<Pipeline>, file: bool, realtime: bool },
+    OdasFile { frames: Vec<odas::OdasFrame>, realtime: bool },
+    OdasFollow { path: std::path::PathBuf, hop_len: u32, sample_rate_hz: u32, start: LiveStart },
     OdasListen { listener: std::net::TcpListener, hop_len: u32, sample_rate_hz: u32, start: LiveStart },
+}
+
+impl HopPlan {
+    /// A finished recording read as fast as possible.
+    fn is_asap_file(&self) -> bool {
+        matches!(
+            self,
+            HopPlan::Own { file: true, realtime: false, .. } | HopPlan::OdasFile { realtime: false, .. }
+        )
+    }
 }
 
 /// Where poses will come from.
@@ -97,7 +108,8 @@ impl LivePlan {
             hello = pipeline.declare_tracks(hello).map_err(|e| named(&cfg_name, "pipeline", e))?;
         }
         let audio_start = Stamp::now();
-        let (hops, sigma_floor_deg) = plan_hops(&config, &array, audio_start, &cfg_name)?;
+        // `origin`: the time of the first sample (or of ODAS's hop 1), see the clock rule in `odas`.
+        let (hops, origin, sigma_floor_deg) = plan_hops(&config, &array, audio_start, &cfg_name)?;
         let mut core_config = CoreConfig {
             pose_buffer: config.pose.buffer,
             max_pose_wait_s: config.pose.max_wait_s,
@@ -107,10 +119,6 @@ impl LivePlan {
         };
         let (poses, trajectory) = match &config.pose.source {
             PoseSource::Tum { path, start_s } => {
-                let origin = match &config.doa {
-                    DoaSource::Own { audio, .. } => audio.start.unwrap_or(audio_start),
-                    DoaSource::Odas(o) => o.start.unwrap_or(audio_start),
-                };
                 let mapping = start_s.map_or(PoseTimeMapping::UNIX, |s| PoseTimeMapping::new(s, origin));
                 (PosePlan::Tum, pose::read_tum(path, mapping)?)
             }
@@ -150,9 +158,10 @@ impl LivePlan {
     async fn run_async(self) -> Result<LinkStats, AgentError> {
         let stop = Arc::new(AtomicBool::new(false));
         let (hops_tx, hops_rx) = mpsc::channel::<Hop>(HOP_QUEUE);
+        let lossless = self.hops.is_asap_file();
         let threads = start_hops(self.hops, hops_tx, stop.clone(), self.orientations.clone())?;
         let poses_rx = start_poses(self.poses)?.map(|rx| share_poses(rx, self.orientations));
-        let inputs = LinkInputs { hops: hops_rx, poses: poses_rx };
+        let inputs = LinkInputs { hops: hops_rx, poses: poses_rx, lossless };
         let (link, task) =
             Link::spawn(self.config.link.clone(), self.core, Box::new(self.navigator), inputs, DRAIN_TIMEOUT);
         let stats = tokio::select! {
@@ -188,7 +197,7 @@ fn plan_hops(
     array: &ArrayGeometry,
     audio_start: Stamp,
     cfg_name: &str,
-) -> Result<(HopPlan, f64), AgentError> {
+) -> Result<(HopPlan, Stamp, f64), AgentError> {
     Ok(match &config.doa {
         DoaSource::Own { audio, pipeline } => {
             let p = Pipeline::new(array, pipeline).map_err(|e| named(cfg_name, "pipeline", e))?;
@@ -199,22 +208,52 @@ fn plan_hops(
                 channel_map: audio.channel_map.clone(),
                 start: audio.start.unwrap_or(audio_start),
             };
-            let source = audio::open(&audio.input, &options)?;
+            let mut start = options.start;
+            let mut source = audio::open(&audio.input, &options)?;
             let file = matches!(audio.input, AudioInput::Wav { .. } | AudioInput::Raw { .. });
+            if let (None, false, Some(frames)) = (audio.start, audio.realtime, source.frames_total()) {
+                // asap: the file ends when the agent starts, so no stamp runs ahead of the clock.
+                let length_ns = audio::stamp_of_frame(Stamp::ZERO, frames, p.sample_rate_hz()).as_ns();
+                start = audio_start.plus_ns(-length_ns);
+                source = audio::open(&audio.input, &BlockOptions { start, ..options })?;
+            }
             let floor = pipeline.doa_sigma_floor_deg;
-            (HopPlan::Own { source, pipeline: Box::new(p), realtime: file && audio.realtime }, floor)
+            (
+                HopPlan::Own { source, pipeline: Box::new(p), file, realtime: file && audio.realtime },
+                start,
+                floor,
+            )
         }
         DoaSource::Odas(o) => {
             let floor = CoreConfig::default().doa_sigma_floor_rad.to_degrees();
             match &o.input {
-                OdasInput::File(path) => {
-                    let timing = OdasTiming {
+                OdasInput::File { path, follow: false } => {
+                    let mut timing = OdasTiming {
                         hop_len: o.hop_len,
                         sample_rate_hz: o.sample_rate_hz,
                         start: o.start.unwrap_or(audio_start),
                     };
-                    (HopPlan::OdasFile(odas::read_sst_file(path, &timing)?), floor)
+                    let mut frames = odas::read_sst_file(path, &timing)?;
+                    if o.start.is_none() && !o.realtime {
+                        // asap: the recording ends when the agent starts (the clock rule).
+                        let end = frames.last().map_or(0, |f| timing.stamp(f.time_stamp + 1) - timing.start);
+                        timing.start = audio_start.plus_ns(-end);
+                        for f in &mut frames {
+                            f.stamp = timing.stamp(f.time_stamp);
+                        }
+                    }
+                    (HopPlan::OdasFile { frames, realtime: o.realtime }, timing.start, floor)
                 }
+                OdasInput::File { path, follow: true } => (
+                    HopPlan::OdasFollow {
+                        path: path.clone(),
+                        hop_len: o.hop_len,
+                        sample_rate_hz: o.sample_rate_hz,
+                        start: o.start.map_or(LiveStart::AtFirstFrame, LiveStart::Fixed),
+                    },
+                    o.start.unwrap_or(audio_start),
+                    floor,
+                ),
                 OdasInput::Listen(addr) => (
                     HopPlan::OdasListen {
                         listener: bind(*addr, &format!("{cfg_name}: doa.listen"))?,
@@ -222,6 +261,7 @@ fn plan_hops(
                         sample_rate_hz: o.sample_rate_hz,
                         start: o.start.map_or(LiveStart::AtFirstFrame, LiveStart::Fixed),
                     },
+                    o.start.unwrap_or(audio_start),
                     floor,
                 ),
             }
@@ -246,39 +286,56 @@ fn start_hops(
     orientations: Orientations,
 ) -> Result<Option<Threads>, AgentError> {
     match plan {
-        HopPlan::Own { source, pipeline, realtime } => {
+        HopPlan::Own { source, pipeline, realtime, .. } => {
             return Ok(Some(spawn_dsp(source, pipeline, realtime, out, stop, orientations)));
         }
-        HopPlan::OdasFile(frames) => {
+        HopPlan::OdasFile { frames, realtime } => {
             tokio::spawn(async move {
                 let (wall0, stamp0) = (Instant::now(), frames.first().map_or(Stamp::ZERO, |f| f.stamp));
                 for f in frames {
-                    tokio::time::sleep_until((wall0 + since(stamp0, f.stamp)).into()).await;
+                    if realtime {
+                        tokio::time::sleep_until((wall0 + since(stamp0, f.stamp)).into()).await;
+                    }
                     if out.send(Hop { stamp: f.stamp, doas: f.doas }).await.is_err() {
                         return;
                     }
                 }
+                tracing::info!("end of the ODAS file");
             });
+        }
+        HopPlan::OdasFollow { path, hop_len, sample_rate_hz, start } => {
+            let (odas_tx, odas_rx) = mpsc::channel(HOP_QUEUE);
+            tokio::spawn(async move {
+                if let Err(e) = odas::follow_file(path, hop_len, sample_rate_hz, start, odas_tx).await {
+                    tracing::error!("{e}");
+                }
+            });
+            forward_odas(odas_rx, out);
         }
         HopPlan::OdasListen { listener, hop_len, sample_rate_hz, start } => {
             let listener = tokio::net::TcpListener::from_std(listener)
                 .map_err(|source| AgentError::Io { path: "doa.listen".into(), source })?;
-            let (odas_tx, mut odas_rx) = mpsc::channel(HOP_QUEUE);
+            let (odas_tx, odas_rx) = mpsc::channel(HOP_QUEUE);
             tokio::spawn(async move {
                 if let Err(e) = odas::serve_tcp(listener, hop_len, sample_rate_hz, start, odas_tx).await {
                     tracing::error!("{e}");
                 }
             });
-            tokio::spawn(async move {
-                while let Some(f) = odas_rx.recv().await {
-                    if out.send(Hop { stamp: f.stamp, doas: f.doas }).await.is_err() {
-                        return;
-                    }
-                }
-            });
+            forward_odas(odas_rx, out);
         }
     }
     Ok(None)
+}
+
+/// Passes a live ODAS bridge's frames on to the link as hops.
+fn forward_odas(mut frames: mpsc::Receiver<odas::OdasFrame>, out: mpsc::Sender<Hop>) {
+    tokio::spawn(async move {
+        while let Some(f) = frames.recv().await {
+            if out.send(Hop { stamp: f.stamp, doas: f.doas }).await.is_err() {
+                return;
+            }
+        }
+    });
 }
 
 /// Passes the live poses on to the link, keeping a copy for the DSP thread.

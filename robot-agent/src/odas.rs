@@ -29,19 +29,61 @@
 //!   robot's real noise from there (it only ever inflates the prior).
 //!
 //! ODAS's socket sink connects out as a TCP client to `ip:port` of its `tracked`
-//! interface, so the bridge listens there ([`serve_tcp`]). Files written by its
-//! file sink are read with [`read_sst_file`].
+//! interface, so the bridge listens there ([`serve_tcp`]): start the agent
+//! first (it says where it listens), then ODAS. Files written by its file sink
+//! are read whole with [`read_sst_file`] (a finished recording, sent at the pace
+//! of its stamps or as fast as possible), or followed as ODAS appends to them
+//! with [`follow_file`].
+//!
+//! # The clock rule
+//!
+//! A hop's stamp is `start + (timeStamp − 1)·hop_len/sample_rate_hz`; what
+//! `start` is depends on the input:
+//!
+//! - `doa.start_ns` given: that, always (ODAS's first sample in Unix ns).
+//! - socket: the agent's clock when a connection's first object arrives (so
+//!   stamps lag the sound by ODAS's latency, tens of ms); each connection is
+//!   anchored anew, since a restarted ODAS counts from 1 again. With a fixed
+//!   start, a connection whose counter went backwards is re-anchored the same
+//!   way, with a warning.
+//! - followed file: objects already in the file are skipped and the newest
+//!   is taken as written now; if the file is empty, the first object to
+//!   appear is anchored on arrival. A file that shrinks (ODAS restarted and
+//!   rewrote it) is read again from its start and re-anchored.
+//! - finished file, `pace = "realtime"`: the agent's start; `"asap"`: the
+//!   agent's start minus the recording's length, so the whole recording lies
+//!   in the past and no stamp runs ahead of the coordinator's clock (which
+//!   accepts stamps up to `limits.max_past_ms`, 5 min by default, old).
+//!
+//! Poses from a TUM file with `pose.start_s` are placed on the same `start`,
+//! so a live ODAS (socket or followed file) with such poses needs
+//! `doa.start_ns`: the configuration refuses to guess.
+//!
+//! Live hops stamped ahead of the agent's clock (ODAS fed from a file at full
+//! speed, or a start in the future) are held until due, with a rate-limited
+//! warning, instead of being sent early for the coordinator to reject one by
+//! one; holding stops reading, so TCP slows ODAS down to real time.
 
-use std::path::Path;
+use std::path::{Path, PathBuf};
+use std::time::Duration;
 
 use nalgebra::{Unit, Vector3};
 use serde::Deserialize;
-use soundmap_proto::{Stamp, TrackedDoa};
-use tokio::io::AsyncReadExt;
+use soundmap_proto::{Stamp, TrackedDoa, warn_limited};
+use tokio::io::{AsyncReadExt, AsyncSeekExt};
 use tokio::net::TcpListener;
 use tokio::sync::mpsc;
 
-use crate::AgentError;
+use crate::{AgentError, WARNINGS};
+
+/// How often a followed file is checked for new objects.
+pub const FOLLOW_POLL: Duration = Duration::from_millis(20);
+
+/// How long the bridge waits for ODAS before it says again that it is waiting.
+pub const WAIT_REPORT: Duration = Duration::from_secs(30);
+
+/// A hop further ahead of the agent's clock than this is worth a warning.
+const AHEAD_WARN_NS: i64 = 50_000_000;
 
 /// Accepted deviation of an SST direction's norm from 1 (3-decimal printing).
 pub const NORM_TOLERANCE: f64 = 0.05;
@@ -273,9 +315,75 @@ pub enum LiveStart {
     AtFirstFrame,
 }
 
+/// Holds a live hop until its stamp is due on the agent's clock (see the
+/// module documentation); returns at once for a hop that is not ahead.
+async fn hold_until_due(name: &str, frame: &OdasFrame) {
+    let ahead_ns = frame.stamp - Stamp::now();
+    if ahead_ns <= 0 {
+        return;
+    }
+    if ahead_ns > AHEAD_WARN_NS {
+        warn_limited!(
+            WARNINGS,
+            "odas_ahead",
+            "{name}: timeStamp {} is {:.0} ms ahead of this clock (is ODAS reading a file faster than \
+             real time?); its hops are held until due",
+            frame.time_stamp,
+            ahead_ns as f64 * 1e-6
+        );
+    }
+    tokio::time::sleep(Duration::from_nanos(ahead_ns as u64)).await;
+}
+
+/// Converts parsed objects of a live stream (socket or followed file) and
+/// sends them, anchoring `timing` at the first one when it is not set and
+/// holding hops until due. Returns `false` once `tx` is closed.
+async fn forward_live(
+    name: &str,
+    parsed: Vec<Result<SstFrame, (usize, String)>>,
+    timing: &mut Option<OdasTiming>,
+    (hop_len, sample_rate_hz): (u32, u32),
+    sent: &mut u64,
+    last_hop: &mut Option<u64>,
+    tx: &mpsc::Sender<OdasFrame>,
+) -> bool {
+    for r in parsed {
+        let sst = match r {
+            Ok(f) => f,
+            Err((line, message)) => {
+                warn_limited!(WARNINGS, "odas_malformed", "{name}: line {line}: {message}; object skipped");
+                continue;
+            }
+        };
+        let t = *timing.get_or_insert_with(|| {
+            OdasTiming::anchored(hop_len, sample_rate_hz, sst.time_stamp, Stamp::now())
+        });
+        match sst.to_frame(&t) {
+            Ok(frame) => {
+                hold_until_due(name, &frame).await;
+                *last_hop = Some(frame.time_stamp);
+                *sent += 1;
+                if tx.send(frame).await.is_err() {
+                    return false;
+                }
+            }
+            Err(message) => warn_limited!(
+                WARNINGS,
+                "odas_invalid",
+                "{name}: timeStamp {}: {message}; skipped",
+                sst.time_stamp
+            ),
+        }
+    }
+    true
+}
+
 /// Listens for ODAS's tracked-sources socket sink and forwards converted frames to
-/// `tx`. Connections are served one after another (a restarted ODAS reconnects);
-/// malformed objects are logged and skipped. Returns when `tx` is closed.
+/// `tx`. Connections are served one after another: when ODAS disconnects the
+/// bridge says so and waits for it to reconnect, and while nothing is
+/// connected it says every [`WAIT_REPORT`] that it is still waiting. Timing
+/// follows the module's clock rule; malformed objects are skipped with
+/// rate-limited warnings. Returns when `tx` is closed.
 pub async fn serve_tcp(
     listener: TcpListener,
     hop_len: u32,
@@ -284,19 +392,30 @@ pub async fn serve_tcp(
     tx: mpsc::Sender<OdasFrame>,
 ) -> Result<(), AgentError> {
     let local = listener.local_addr().map(|a| a.to_string()).unwrap_or_else(|_| "ODAS socket".into());
+    tracing::info!(
+        "listening for ODAS on {local}: start ODAS now (its sst tracked interface, type \"socket\", \
+         connects to this address)"
+    );
     let mut chunk = vec![0u8; 16 * 1024];
+    let mut last_hop: Option<u64> = None;
+    let mut waiting_since = std::time::Instant::now();
     while !tx.is_closed() {
-        let (mut stream, peer) = listener
-            .accept()
-            .await
-            .map_err(|source| AgentError::Io { path: local.clone().into(), source })?;
+        let (mut stream, peer) = match tokio::time::timeout(WAIT_REPORT, listener.accept()).await {
+            Ok(r) => r.map_err(|source| AgentError::Io { path: local.clone().into(), source })?,
+            Err(_) => {
+                tracing::warn!(
+                    "no ODAS connected on {local} for {:.0} s; still listening",
+                    waiting_since.elapsed().as_secs_f64()
+                );
+                continue;
+            }
+        };
         let name = format!("ODAS {peer}");
         tracing::info!("{name}: connected");
         let mut parser = SstParser::new();
-        let mut timing = match start {
-            LiveStart::Fixed(start) => Some(OdasTiming { hop_len, sample_rate_hz, start }),
-            LiveStart::AtFirstFrame => None,
-        };
+        let mut timing = None;
+        let mut sent = 0u64;
+        let previous = last_hop.take();
         loop {
             let n = match stream.read(&mut chunk).await {
                 Ok(0) => break,
@@ -306,30 +425,117 @@ pub async fn serve_tcp(
                     break;
                 }
             };
-            for r in parser.feed(&chunk[..n]) {
-                let sst = match r {
-                    Ok(f) => f,
-                    Err((line, message)) => {
-                        tracing::warn!("{name}: line {line}: {message}; object skipped");
-                        continue;
-                    }
-                };
-                let t = *timing.get_or_insert_with(|| {
-                    OdasTiming::anchored(hop_len, sample_rate_hz, sst.time_stamp, Stamp::now())
-                });
-                match sst.to_frame(&t) {
-                    Ok(frame) => {
-                        if tx.send(frame).await.is_err() {
-                            return Ok(());
-                        }
-                    }
-                    Err(message) => {
-                        tracing::warn!("{name}: timeStamp {}: {message}; skipped", sst.time_stamp)
-                    }
+            let parsed = parser.feed(&chunk[..n]);
+            if timing.is_none()
+                && let (LiveStart::Fixed(start), Some(first)) =
+                    (start, parsed.iter().find_map(|r| r.as_ref().ok()))
+            {
+                // A restarted ODAS counts from 1 again: its counter no longer matches `start`.
+                if previous.is_some_and(|p| first.time_stamp <= p) {
+                    tracing::warn!(
+                        "{name}: timeStamp went back from {} to {} (ODAS restarted): doa.start_ns no \
+                         longer holds, this connection is timed from its first object",
+                        previous.unwrap_or(0),
+                        first.time_stamp
+                    );
+                } else {
+                    timing = Some(OdasTiming { hop_len, sample_rate_hz, start });
                 }
             }
+            let rates = (hop_len, sample_rate_hz);
+            if !forward_live(&name, parsed, &mut timing, rates, &mut sent, &mut last_hop, &tx).await {
+                return Ok(());
+            }
         }
-        tracing::info!("{name}: closed");
+        if last_hop.is_none() {
+            last_hop = previous;
+        }
+        tracing::warn!(
+            "{name}: ODAS disconnected after {sent} objects (last timeStamp {}); listening on {local} for it \
+             to reconnect",
+            last_hop.map_or("none".into(), |t| t.to_string())
+        );
+        waiting_since = std::time::Instant::now();
+    }
+    Ok(())
+}
+
+/// Follows an SST file that ODAS's file sink is writing (`doa.follow = true`):
+/// waits for the file to exist, then forwards each object as it is appended,
+/// until `tx` is closed. Timing follows the module's clock rule (with
+/// [`LiveStart::AtFirstFrame`], what is already in the file is skipped and its
+/// newest object is taken as written now). A file that shrinks is read again
+/// from its start.
+pub async fn follow_file(
+    path: PathBuf,
+    hop_len: u32,
+    sample_rate_hz: u32,
+    start: LiveStart,
+    tx: mpsc::Sender<OdasFrame>,
+) -> Result<(), AgentError> {
+    let name = path.display().to_string();
+    let io = |source| AgentError::Io { path: path.clone(), source };
+    let mut reported = false;
+    let mut file = loop {
+        match tokio::fs::File::open(&path).await {
+            Ok(f) => break f,
+            Err(e) if e.kind() == std::io::ErrorKind::NotFound => {
+                if !reported {
+                    tracing::info!("{name}: not there yet; waiting for ODAS to create it");
+                    reported = true;
+                }
+                if tx.is_closed() {
+                    return Ok(());
+                }
+                tokio::time::sleep(FOLLOW_POLL).await;
+            }
+            Err(e) => return Err(io(e)),
+        }
+    };
+    let rates = (hop_len, sample_rate_hz);
+    let fixed = |s| match s {
+        LiveStart::Fixed(start) => Some(OdasTiming { hop_len, sample_rate_hz, start }),
+        LiveStart::AtFirstFrame => None,
+    };
+    let mut parser = SstParser::new();
+    let mut timing = fixed(start);
+    let (mut pos, mut sent, mut last_hop) = (0u64, 0u64, None);
+    if start == LiveStart::AtFirstFrame {
+        // Skip what is there; its newest object was written just now.
+        let mut existing = Vec::new();
+        file.read_to_end(&mut existing).await.map_err(io)?;
+        pos = existing.len() as u64;
+        let newest = parser.feed(&existing).into_iter().filter_map(Result::ok).next_back();
+        if let Some(f) = &newest {
+            timing = Some(OdasTiming::anchored(hop_len, sample_rate_hz, f.time_stamp, Stamp::now()));
+            tracing::info!(
+                "{name}: following from timeStamp {} (the objects before it are skipped)",
+                f.time_stamp
+            );
+        }
+    }
+    tracing::info!("{name}: following the file as ODAS writes it");
+    let mut chunk = vec![0u8; 64 * 1024];
+    while !tx.is_closed() {
+        let len = file.metadata().await.map_err(io)?.len();
+        if len < pos {
+            tracing::warn!(
+                "{name}: the file shrank from {pos} to {len} bytes (ODAS restarted?); reading it again from \
+                 its start"
+            );
+            file.seek(std::io::SeekFrom::Start(0)).await.map_err(io)?;
+            (pos, parser, timing) = (0, SstParser::new(), None);
+        }
+        let n = file.read(&mut chunk).await.map_err(io)?;
+        if n == 0 {
+            tokio::time::sleep(FOLLOW_POLL).await;
+            continue;
+        }
+        pos += n as u64;
+        let parsed = parser.feed(&chunk[..n]);
+        if !forward_live(&name, parsed, &mut timing, rates, &mut sent, &mut last_hop, &tx).await {
+            break;
+        }
     }
     Ok(())
 }

@@ -362,7 +362,7 @@ impl Running {
         let core = Agent::new(hello(id), core_config, "test poses").unwrap();
         let (hops, hops_rx) = mpsc::channel(64);
         let (poses, poses_rx) = mpsc::channel(64);
-        let inputs = LinkInputs { hops: hops_rx, poses: Some(poses_rx) };
+        let inputs = LinkInputs { hops: hops_rx, poses: Some(poses_rx), lossless: false };
         let (link, task) = Link::spawn(config(addr, capacity), core, navigator, inputs, WAIT);
         Running { link, task, hops, poses, next: Stamp::now() }
     }

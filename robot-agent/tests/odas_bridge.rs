@@ -139,3 +139,130 @@ async fn live_stream_without_a_start_is_anchored_at_the_first_frame() {
     assert_eq!(second.stamp - first.stamp, 8_000_000);
     bridge.abort();
 }
+
+/// The fixture's objects, each as ODAS writes it (with its trailing newline).
+fn fixture_objects() -> Vec<String> {
+    let text = std::fs::read_to_string(fixture()).unwrap();
+    let objects: Vec<String> = text.split_inclusive("\n}\n").map(str::to_owned).collect();
+    assert_eq!(objects.len(), 6);
+    objects
+}
+
+async fn next(rx: &mut tokio::sync::mpsc::Receiver<odas::OdasFrame>) -> odas::OdasFrame {
+    tokio::time::timeout(Duration::from_secs(5), rx.recv()).await.expect("a frame within 5 s").expect("open")
+}
+
+fn scratch(name: &str) -> PathBuf {
+    let dir = std::env::temp_dir().join(format!("soundmap-odas-{name}-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).unwrap();
+    dir
+}
+
+#[tokio::test]
+async fn a_followed_file_is_read_as_odas_appends_to_it() {
+    let dir = scratch("follow");
+    let path = dir.join("tracks.json");
+    let objects = fixture_objects();
+    // ODAS has written three objects when the agent starts.
+    std::fs::write(&path, objects[..3].concat()).unwrap();
+    let (tx, mut rx) = tokio::sync::mpsc::channel(16);
+    let started = Stamp::now();
+    let follower = tokio::spawn(odas::follow_file(path.clone(), 128, 16_000, LiveStart::AtFirstFrame, tx));
+    tokio::time::sleep(Duration::from_millis(100)).await;
+    let after_start = Stamp::now();
+    // It appends the rest, one object split over two writes.
+    let append = |bytes: &str| {
+        use std::io::Write;
+        let mut f = std::fs::OpenOptions::new().append(true).open(&path).unwrap();
+        f.write_all(bytes.as_bytes()).unwrap();
+    };
+    append(&objects[3]);
+    let (a, b) = objects[4].split_at(objects[4].len() / 2);
+    append(a);
+    tokio::time::sleep(Duration::from_millis(60)).await;
+    append(b);
+    append(&objects[5]);
+    // What was there is skipped; the newest object there (timeStamp 3) was
+    // taken as written when the agent opened the file.
+    let frames = [next(&mut rx).await, next(&mut rx).await, next(&mut rx).await];
+    assert_eq!(frames.iter().map(|f| f.time_stamp).collect::<Vec<_>>(), vec![4, 5, 6]);
+    let hop3 = frames[0].stamp.plus_ns(-8_000_000);
+    assert!(hop3 >= started && hop3 <= after_start, "hop 3 at {hop3}, agent started at {started}");
+    assert_eq!(frames[2].stamp - frames[1].stamp, 8_000_000);
+
+    // ODAS restarts and rewrites the file from timeStamp 1: read again from
+    // its start and anchored anew (hop 1 is now).
+    let before = Stamp::now();
+    std::fs::write(&path, objects[..2].concat()).unwrap();
+    let again = [next(&mut rx).await, next(&mut rx).await];
+    assert_eq!(again.iter().map(|f| f.time_stamp).collect::<Vec<_>>(), vec![1, 2]);
+    assert!(again[0].stamp >= before && again[0].stamp <= Stamp::now());
+    follower.abort();
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+#[tokio::test]
+async fn a_followed_file_may_appear_after_the_agent_starts() {
+    let dir = scratch("follow-late");
+    let path = dir.join("later.json");
+    let (tx, mut rx) = tokio::sync::mpsc::channel(16);
+    let start = Stamp::now().plus_ns(-10_000_000_000);
+    let follower = tokio::spawn(odas::follow_file(path.clone(), 128, 16_000, LiveStart::Fixed(start), tx));
+    tokio::time::sleep(Duration::from_millis(100)).await;
+    std::fs::write(&path, fixture_objects().concat()).unwrap();
+    // With a known start, every object counts, from the first.
+    for k in 0..6u64 {
+        let f = next(&mut rx).await;
+        assert_eq!((f.time_stamp, f.stamp), (k + 1, start.plus_ns(k as i64 * 8_000_000)));
+    }
+    follower.abort();
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+#[tokio::test]
+async fn the_socket_bridge_waits_for_odas_to_reconnect_and_reanchors_a_restarted_one() {
+    let listener = tokio::net::TcpListener::bind("127.0.0.1:0").await.unwrap();
+    let addr = listener.local_addr().unwrap();
+    let (tx, mut rx) = tokio::sync::mpsc::channel(16);
+    // A known start in the past: the first connection is timed from it.
+    let start = Stamp::now().plus_ns(-5_000_000_000);
+    let bridge = tokio::spawn(odas::serve_tcp(listener, 128, 16_000, LiveStart::Fixed(start), tx));
+    let objects = fixture_objects();
+    let mut odas_side = tokio::net::TcpStream::connect(addr).await.unwrap();
+    odas_side.write_all(objects[..4].concat().as_bytes()).await.unwrap();
+    for k in 0..4u64 {
+        assert_eq!(next(&mut rx).await.stamp, start.plus_ns(k as i64 * 8_000_000));
+    }
+    // ODAS goes away, and comes back restarted: its counter begins at 1 again,
+    // so start_ns no longer holds and the connection is timed from its first object.
+    drop(odas_side);
+    tokio::time::sleep(Duration::from_millis(100)).await;
+    let before = Stamp::now();
+    let mut restarted = tokio::net::TcpStream::connect(addr).await.unwrap();
+    restarted.write_all(objects[..2].concat().as_bytes()).await.unwrap();
+    let (a, b) = (next(&mut rx).await, next(&mut rx).await);
+    assert_eq!((a.time_stamp, b.time_stamp), (1, 2));
+    assert!(a.stamp >= before && a.stamp <= Stamp::now(), "re-anchored on arrival");
+    assert_eq!(b.stamp - a.stamp, 8_000_000);
+    bridge.abort();
+}
+
+#[tokio::test]
+async fn hops_ahead_of_the_agents_clock_are_held_until_due() {
+    let listener = tokio::net::TcpListener::bind("127.0.0.1:0").await.unwrap();
+    let addr = listener.local_addr().unwrap();
+    let (tx, mut rx) = tokio::sync::mpsc::channel(16);
+    // ODAS "started" 300 ms from now (as when it reads a file faster than real time).
+    let start = Stamp::now().plus_ns(300_000_000);
+    let bridge = tokio::spawn(odas::serve_tcp(listener, 128, 16_000, LiveStart::Fixed(start), tx));
+    let mut odas_side = tokio::net::TcpStream::connect(addr).await.unwrap();
+    odas_side.write_all(&std::fs::read(fixture()).unwrap()).await.unwrap();
+    for k in 0..6u64 {
+        let f = next(&mut rx).await;
+        let received = Stamp::now();
+        assert_eq!(f.stamp, start.plus_ns(k as i64 * 8_000_000));
+        assert!(received >= f.stamp, "hop {} sent {} ns before it was due", f.time_stamp, f.stamp - received);
+    }
+    bridge.abort();
+}

@@ -24,6 +24,8 @@ pub struct RawSource {
     blocks: BlockReader,
     clock: FrameClock,
     ended: bool,
+    /// Frames in the file (files only).
+    frames_total: Option<u64>,
 }
 
 impl std::fmt::Debug for RawSource {
@@ -63,7 +65,9 @@ impl RawSource {
                 ),
             ));
         }
-        Self::from_reader(&path.display().to_string(), Box::new(file), layout, options)
+        let mut source = Self::from_reader(&path.display().to_string(), Box::new(file), layout, options)?;
+        source.frames_total = (frame_bytes > 0).then(|| len / frame_bytes);
+        Ok(source)
     }
 
     /// Raw PCM on standard input (named `-` in messages).
@@ -93,6 +97,7 @@ impl RawSource {
             hop_len: options.hop_len,
             clock: FrameClock::new(options.start, layout.sample_rate_hz),
             ended: false,
+            frames_total: None,
         })
     }
 }
@@ -100,6 +105,10 @@ impl RawSource {
 impl AudioSource for RawSource {
     fn name(&self) -> &str {
         &self.name
+    }
+
+    fn frames_total(&self) -> Option<u64> {
+        self.frames_total
     }
 
     fn channels(&self) -> usize {

@@ -127,6 +127,10 @@ impl AudioSource for WavSource {
         &self.name
     }
 
+    fn frames_total(&self) -> Option<u64> {
+        Some(self.frames_total)
+    }
+
     fn channels(&self) -> usize {
         self.map.len()
     }

@@ -126,6 +126,8 @@ struct DoaFile {
     hop_len: Option<u32>,
     sample_rate_hz: Option<u32>,
     start_ns: Option<i64>,
+    pace: Option<Pace>,
+    follow: Option<bool>,
 }
 
 #[derive(Debug, Deserialize)]
@@ -218,11 +220,15 @@ impl AgentFile {
             (Some(_), Some(_)) => return Err(c.err("array", "give either `preset` or `file`, not both")),
             (None, None) => return Err(c.err("array", "give `preset = \"NAME\"` or `file = \"ARRAY.toml\"`")),
         };
+        let pose = self.pose.validate(&c)?;
         let doa = match self.doa.source {
             DoaKind::Own => {
-                for (v, f) in
-                    [(self.doa.listen.is_some(), "doa.listen"), (self.doa.file.is_some(), "doa.file")]
-                {
+                for (v, f) in [
+                    (self.doa.listen.is_some(), "doa.listen"),
+                    (self.doa.file.is_some(), "doa.file"),
+                    (self.doa.pace.is_some(), "doa.pace"),
+                    (self.doa.follow.is_some(), "doa.follow"),
+                ] {
                     if v {
                         return Err(c.err(f, "only for doa.source = \"odas\""));
                     }
@@ -237,10 +243,9 @@ impl AgentFile {
                         "not used when doa.source = \"odas\" (ODAS reads the audio); remove it",
                     ));
                 }
-                DoaSource::Odas(self.doa.validate_odas(&c)?)
+                DoaSource::Odas(self.doa.validate_odas(&c, &pose)?)
             }
         };
-        let pose = self.pose.validate(&c)?;
         if pose.source == PoseSource::JsonlStdin
             && matches!(&doa, DoaSource::Own { audio, .. } if matches!(audio.input, AudioInput::Stdin { .. }))
         {
@@ -429,15 +434,28 @@ impl PoseFile {
 }
 
 impl DoaFile {
-    fn validate_odas(self, c: &Check) -> Result<OdasConfig, AgentError> {
+    fn validate_odas(self, c: &Check, pose: &PoseConfig) -> Result<OdasConfig, AgentError> {
+        let follow = self.follow.unwrap_or(false);
         let input = match (self.listen, self.file) {
-            (Some(l), None) => OdasInput::Listen(c.socket(&l, "doa.listen")?),
-            (None, Some(f)) => OdasInput::File(c.resolve(f)),
+            (Some(l), None) => {
+                if self.follow.is_some() || self.pace.is_some() {
+                    let f = if self.follow.is_some() { "doa.follow" } else { "doa.pace" };
+                    return Err(c.err(f, "only for doa.file (a socket delivers at ODAS's own pace)"));
+                }
+                OdasInput::Listen(c.socket(&l, "doa.listen")?)
+            }
+            (None, Some(f)) => OdasInput::File { path: c.resolve(f), follow },
             (Some(_), Some(_)) => return Err(c.err("doa.file", "give either `listen` or `file`, not both")),
             (None, None) => {
                 return Err(c.err("doa.listen", "required when doa.source = \"odas\" (or give `file`)"));
             }
         };
+        if follow && self.pace == Some(Pace::Asap) {
+            return Err(c.err(
+                "doa.pace",
+                "a followed file is read as ODAS writes it; \"asap\" only applies to a finished file",
+            ));
+        }
         let hop_len = self.hop_len.unwrap_or(128);
         let sample_rate_hz = self.sample_rate_hz.unwrap_or(16_000);
         if hop_len == 0 {
@@ -446,7 +464,20 @@ impl DoaFile {
         if sample_rate_hz == 0 {
             return Err(c.err("doa.sample_rate_hz", "must be positive"));
         }
-        Ok(OdasConfig { input, hop_len, sample_rate_hz, start: c.stamp(self.start_ns, "doa.start_ns")? })
+        let start = c.stamp(self.start_ns, "doa.start_ns")?;
+        // The clock rule: a live ODAS (socket, followed file) without start_ns is
+        // timed from when its objects arrive, which a pose file cannot know.
+        let live = matches!(input, OdasInput::Listen(_) | OdasInput::File { follow: true, .. });
+        if live && start.is_none() && matches!(pose.source, PoseSource::Tum { start_s: Some(_), .. }) {
+            return Err(c.err(
+                "doa.start_ns",
+                "required when poses come from a TUM file with pose.start_s and ODAS is live \
+                 (socket or follow): ODAS's hop counter would be timed from its first object and \
+                 the poses from the agent's start; give ODAS's start time in Unix ns",
+            ));
+        }
+        let realtime = self.pace.unwrap_or_default() == Pace::Realtime;
+        Ok(OdasConfig { input, hop_len, sample_rate_hz, start, realtime })
     }
 }
 

@@ -204,3 +204,44 @@ fn pipeline_files_name_their_keys() {
     assert_eq!(load_pipeline(&file).unwrap().srp.speed_of_sound_m_per_s, 340.0);
     std::fs::remove_dir_all(&dir).ok();
 }
+
+/// The example with ODAS instead of `[audio]`: `doa` lines after `source = "odas"`, the pose file kept.
+fn odas_example(doa: &str) -> Result<AgentConfig, AgentError> {
+    let text = example();
+    let start = text.find("\n[audio]\n").unwrap();
+    let end = text.find("\n[pose]\n").unwrap();
+    let text = format!("{}{}", &text[..start], &text[end..]).replacen(
+        "source = \"own\"",
+        &format!("source = \"odas\"\n{doa}"),
+        1,
+    );
+    AgentConfig::parse(&text, Path::new("agent.toml"))
+}
+
+#[test]
+fn odas_files_pace_and_follow() {
+    let c = odas_example("file = \"tracks.json\"\npace = \"asap\"").unwrap();
+    let DoaSource::Odas(o) = &c.doa else { panic!() };
+    assert!(matches!(&o.input, OdasInput::File { follow: false, .. }) && !o.realtime);
+    let c = odas_example("file = \"tracks.json\"").unwrap();
+    let DoaSource::Odas(o) = &c.doa else { panic!() };
+    assert!(o.realtime, "realtime by default");
+    let c = odas_example("file = \"tracks.json\"\nfollow = true\nstart_ns = 1700000000000000000").unwrap();
+    let DoaSource::Odas(o) = &c.doa else { panic!() };
+    assert!(matches!(&o.input, OdasInput::File { follow: true, .. }));
+
+    let err = |doa: &str| odas_example(doa).unwrap_err().to_string();
+    let e = err("listen = \"127.0.0.1:9000\"\npace = \"asap\"");
+    assert!(e.starts_with("agent.toml: doa.pace: only for doa.file"), "{e}");
+    let e = err("file = \"t.json\"\nfollow = true\npace = \"asap\"\nstart_ns = 1");
+    assert!(e.starts_with("agent.toml: doa.pace: a followed file"), "{e}");
+    // The clock rule: a live ODAS with poses from a TUM file placed by start_s
+    // needs ODAS's start.
+    for live in ["listen = \"127.0.0.1:9000\"", "file = \"t.json\"\nfollow = true"] {
+        let e = err(live);
+        assert!(e.starts_with("agent.toml: doa.start_ns: required when poses come from a TUM file"), "{e}");
+    }
+    // Not for our own DoAs.
+    let e = shown_error("source = \"own\"", "source = \"own\"\nfollow = true");
+    assert!(e.starts_with("agent.toml: doa.follow: only for doa.source = \"odas\""), "{e}");
+}

@@ -261,11 +261,11 @@ impl LinkClient {
             }
             Some(In::Error(e)) => {
                 self.stream_errors += 1;
-                tracing::warn!(
-                    code = e.code,
-                    field = %e.field,
-                    sequence = e.sequence,
-                    "coordinator dropped a message: {}: {}",
+                soundmap_proto::warn_limited!(
+                    crate::WARNINGS,
+                    "stream_error",
+                    "coordinator dropped message {}: {}: {}",
+                    e.sequence,
                     e.field,
                     e.message
                 );

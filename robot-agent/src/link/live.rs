@@ -118,6 +118,12 @@ pub struct LinkInputs {
     pub hops: mpsc::Receiver<Hop>,
     /// Live SLAM poses, in stamp order (none for a replayed trajectory already in the core).
     pub poses: Option<mpsc::Receiver<StampedPose>>,
+    /// The hops are a recording read as fast as possible (`pace = "asap"`):
+    /// the link takes a hop only while its buffer has room, so the recording
+    /// waits for acknowledgements instead of losing its oldest observations.
+    /// Live inputs leave it `false`: they cannot wait, and the buffer keeps
+    /// the newest.
+    pub lossless: bool,
 }
 
 /// The live agent's link to the coordinator (see the [module docs](self)).
@@ -236,7 +242,7 @@ impl Task {
                     }
                     None => inputs.poses = None,
                 },
-                hop = inputs.hops.recv(), if drain_until.is_none() => match hop {
+                hop = inputs.hops.recv(), if drain_until.is_none() && self.has_room(inputs.lossless) => match hop {
                     Some(h) => self.core.handle_hop(Stamp::now(), h.stamp, h.doas),
                     None => drain_until = Some(Instant::now() + drain_timeout),
                 },
@@ -278,6 +284,11 @@ impl Task {
         }
         self.flush_outputs().await;
         self.stats.with_core(self.core.stats())
+    }
+
+    /// Whether a hop may be taken now (see [`LinkInputs::lossless`]).
+    fn has_room(&self, lossless: bool) -> bool {
+        !lossless || self.core.stats().pending + self.core.waiting_hops() < self.config.buffer_capacity
     }
 
     fn connect(&self) -> Connecting {
@@ -382,7 +393,11 @@ async fn recv_pose(poses: &mut Option<mpsc::Receiver<StampedPose>>) -> Option<St
 fn log_event(e: &AgentEvent) {
     match e {
         AgentEvent::HopWithoutPose { stamp, reason } => {
-            tracing::warn!("DoA hop at {stamp} dropped: {reason}")
+            soundmap_proto::warn_limited!(
+                crate::WARNINGS,
+                "hop_without_pose",
+                "DoA hop at {stamp} dropped: {reason}"
+            )
         }
         AgentEvent::Ignored(why) => tracing::warn!("{why}"),
         AgentEvent::StreamError(_) => {} // logged by the client with its field

@@ -265,7 +265,7 @@ impl Actor {
             && let Err(e) = s.outbound.try_send(msg)
         {
             super::metrics::LimitCounters::bump(&self.metrics.limits.outbound_dropped);
-            crate::warn_limited!(
+            soundmap_proto::warn_limited!(
                 self.upkeep.ratelog,
                 "outbound_full",
                 "stream {conn}: outbound queue full or closed: {e}"

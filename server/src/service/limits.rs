@@ -38,7 +38,7 @@ use tonic::transport::server::{Connected, TcpConnectInfo};
 use super::metrics::{LimitCounters, Metrics};
 use super::ratelog::RateLog;
 use crate::resources::ServerConfig;
-use crate::warn_limited;
+use soundmap_proto::warn_limited;
 
 /// Descriptors kept free for files, the state store and the runtime when the
 /// connection cap is lowered to the process's limit.

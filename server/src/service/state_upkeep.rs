@@ -22,7 +22,7 @@ use super::metrics::Metrics;
 use super::ratelog::RateLog;
 use crate::coordinator::Coordinator;
 use crate::state::StateWriter;
-use crate::warn_limited;
+use soundmap_proto::warn_limited;
 
 /// Largest `GetState` answer (bytes of its encoding).
 pub const MAX_STATE_BYTES: usize = 3 << 20;

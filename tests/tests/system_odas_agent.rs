@@ -1,0 +1,142 @@
+//! The live agent's ODAS bridge, as a user of ODAS runs it: each robot's
+//! `soundmap-agent run` ([`LivePlan`], in-process, one per robot, real gRPC on
+//! loopback) reads the SST file ODAS wrote, with `pace = "asap"` and no
+//! `start_ns`, and poses from a TUM file, against a real coordinator on the
+//! system clock. The same files go through `soundmap-sim replay`. The two
+//! coordinators' observation logs must hold the same observations per robot:
+//! the same DoAs in the same order, the same poses, and stamps that differ by
+//! one constant per robot (the live agent places the recording so that it
+//! ends when it starts: the clock rule of `soundmap_agent::odas`).
+//!
+//! `cargo test -p soundmap-sim --test system_odas_agent -- --nocapture`
+//! prints how long the live agents took for the 60 s files.
+
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+use std::time::Instant;
+
+use soundmap_agent::config::AgentConfig;
+use soundmap_agent::live::LivePlan;
+use soundmap_server::CoordinatorConfig;
+use soundmap_server::clock::SystemClock;
+use soundmap_sim::odas_like::trial::{OdasTrialSpec, write_trial};
+use soundmap_sim::replay::{ReplayArgs, parse_robot, replay};
+
+fn scratch(name: &str) -> PathBuf {
+    let dir = std::env::temp_dir().join(format!("soundmap-{name}-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).unwrap();
+    dir
+}
+
+/// Observation lines per robot, in the order the coordinator accepted them.
+fn observations_by_robot(path: &Path) -> BTreeMap<String, Vec<serde_json::Value>> {
+    let text = std::fs::read_to_string(path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+    let mut out: BTreeMap<String, Vec<serde_json::Value>> = BTreeMap::new();
+    for line in text.lines() {
+        let v: serde_json::Value = serde_json::from_str(line).unwrap();
+        out.entry(v["robot_id"].as_str().unwrap().to_owned()).or_default().push(v);
+    }
+    out
+}
+
+#[test]
+fn live_agents_send_odas_files_asap_as_the_replay_does() {
+    let dir = scratch("odas-agent");
+    let trial = write_trial(&dir, &OdasTrialSpec { seed: 3, ..OdasTrialSpec::default() }).unwrap();
+
+    // (1) soundmap-sim replay of the SST files.
+    let replay_log = dir.join("replay-observations.jsonl");
+    let coordinator_toml = dir.join("coordinator.toml");
+    std::fs::write(
+        &coordinator_toml,
+        format!("[output]\nobservations_jsonl = \"{}\"\n", replay_log.display()),
+    )
+    .unwrap();
+    let args = ReplayArgs {
+        robots: trial.robots.iter().map(|r| parse_robot(&r.to_argument()).unwrap()).collect(),
+        truths: vec![],
+        out: dir.join("replay"),
+        coordinator_config: Some(coordinator_toml),
+        pipeline: None,
+        max_pose_gap_s: 0.5,
+        view: Default::default(),
+        rosbag: None,
+    };
+    replay(&args).unwrap();
+
+    // (2) the live agents, asap, against a coordinator on the system clock.
+    let live_log = dir.join("live-observations.jsonl");
+    let runtime = tokio::runtime::Builder::new_multi_thread().worker_threads(2).enable_all().build().unwrap();
+    let mut config = CoordinatorConfig::default();
+    config.output.observations_jsonl = Some(live_log.clone());
+    // 7,500 observations per robot in well under a second: far over a live
+    // robot's rate, which the coordinator bounds per stream (real seconds).
+    config.server.max_observation_rate_hz = 100_000.0;
+    let coordinator = runtime.block_on(async {
+        let listener = tokio::net::TcpListener::bind("127.0.0.1:0").await.unwrap();
+        soundmap_server::service::start(config, Arc::new(SystemClock), listener).await.unwrap()
+    });
+    let endpoint = format!("http://{}", coordinator.local_addr);
+    let t0 = Instant::now();
+    let agents: Vec<_> = trial
+        .robots
+        .iter()
+        .map(|r| {
+            let path = dir.join(format!("{}.toml", r.id));
+            let toml = format!(
+                "robot_id = \"{id}\"\n[coordinator]\nendpoint = \"{endpoint}\"\n[array]\npreset = \"{array}\"\n\
+                 [doa]\nsource = \"odas\"\nfile = \"{sst}\"\npace = \"asap\"\n\
+                 [pose]\nsource = \"tum\"\npath = \"{tum}\"\nstart_s = {start}\n\
+                 [navigator]\npath = \"{dir}/{id}-goals.jsonl\"\n",
+                id = r.id,
+                array = r.array,
+                sst = r.odas.as_ref().unwrap().path.display(),
+                tum = r.poses.display(),
+                start = r.start_s,
+                dir = dir.display(),
+            );
+            std::fs::write(&path, toml).unwrap();
+            std::thread::spawn(move || {
+                let config = AgentConfig::load(&path).unwrap_or_else(|e| panic!("{e}"));
+                LivePlan::prepare(config).unwrap().run().unwrap()
+            })
+        })
+        .collect();
+    for a in agents {
+        let stats = a.join().unwrap();
+        assert_eq!((stats.pending, stats.dropped, stats.stream_errors), (0, 0, 0), "{stats:?}");
+    }
+    let live_s = t0.elapsed().as_secs_f64();
+    runtime.block_on(coordinator.shutdown()).unwrap();
+
+    let live = observations_by_robot(&live_log);
+    let replayed = observations_by_robot(&replay_log);
+    assert_eq!(live.keys().collect::<Vec<_>>(), vec!["r1", "r2"]);
+    assert_eq!(live.keys().collect::<Vec<_>>(), replayed.keys().collect::<Vec<_>>());
+    for (id, l) in &live {
+        let r = &replayed[id];
+        println!("{id}: {} observations live, {} replayed", l.len(), r.len());
+        assert!(l.len() > 7000, "{id}: {} of the 60 s file's 7,500 hops", l.len());
+        assert_eq!(l.len(), r.len(), "{id}: observation counts differ");
+        let stamp = |o: &serde_json::Value| o["stamp_ns"].as_i64().unwrap();
+        let offset = stamp(&l[0]) - stamp(&r[0]);
+        for (k, (a, b)) in l.iter().zip(r).enumerate() {
+            assert_eq!(a["doas"], b["doas"], "{id}: observation {k}");
+            assert_eq!(stamp(a) - stamp(b), offset, "{id}: observation {k} is not on the same clock offset");
+            let (pa, pb) = (a["map_from_base"].as_array().unwrap(), b["map_from_base"].as_array().unwrap());
+            for (x, y) in pa.iter().zip(pb) {
+                assert!(
+                    (x.as_f64().unwrap() - y.as_f64().unwrap()).abs() < 1e-6,
+                    "{id}: pose {k}: {pa:?} {pb:?}"
+                );
+            }
+        }
+        // The recording lies in the past: it ends by the time the agent started.
+        let end = stamp(l.last().unwrap());
+        assert!(end <= soundmap_proto::Stamp::now().as_ns(), "{id}: the last stamp is ahead of the clock");
+    }
+    println!("two live agents sent the 60 s ODAS files (asap) in {live_s:.2} s");
+    let _ = std::fs::remove_dir_all(&dir);
+}
