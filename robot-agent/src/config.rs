@@ -38,6 +38,20 @@ pub struct AgentConfig {
     pub navigator: NavigatorConfig,
     /// Link settings (endpoint and token from `coordinator`).
     pub link: LinkConfig,
+    /// This robot's tracks in ODAS's SST JSON, for ODAS tools (`[odas_out]`).
+    pub odas_out: Option<OdasOutConfig>,
+}
+
+/// `[odas_out]`: the tracks the agent sends, also written as ODAS's SST JSON
+/// (see [`crate::odas::out`]).
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct OdasOutConfig {
+    /// Connect to a tool that listens for SST (odas_web, odas_ros), as ODAS's socket sink does.
+    pub connect: Option<SocketAddr>,
+    /// Write SST objects to this file, as ODAS's file sink does.
+    pub file: Option<PathBuf>,
+    /// Source slots per object (ODAS's `sst.N`), empty ones with id 0.
+    pub slots: usize,
 }
 
 /// `[coordinator]`.

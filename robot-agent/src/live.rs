@@ -70,6 +70,8 @@ pub struct LivePlan {
     /// file, or the live feed's poses as they arrive.
     orientations: Orientations,
     navigator: JsonLinesNavigator,
+    /// `[odas_out]`: the tracks also written as ODAS's SST JSON.
+    odas_out: Option<odas::out::OdasOut>,
 }
 
 /// Poses shared with the DSP thread.
@@ -139,7 +141,8 @@ impl LivePlan {
         let orientations = Arc::new(Mutex::new(orientations));
         let navigator =
             JsonLinesNavigator::open(&config.navigator.path, config.navigator.arrival_tolerance_m)?;
-        Ok(LivePlan { config, core, hops, poses, orientations, navigator })
+        let odas_out = config.odas_out.as_ref().map(odas::out::OdasOut::open).transpose()?;
+        Ok(LivePlan { config, core, hops, poses, orientations, navigator, odas_out })
     }
 
     /// Runs the agent until its input ends (and everything is acknowledged) or
@@ -157,9 +160,14 @@ impl LivePlan {
 
     async fn run_async(self) -> Result<LinkStats, AgentError> {
         let stop = Arc::new(AtomicBool::new(false));
-        let (hops_tx, hops_rx) = mpsc::channel::<Hop>(HOP_QUEUE);
+        let (hops_tx, mut hops_rx) = mpsc::channel::<Hop>(HOP_QUEUE);
         let lossless = self.hops.is_asap_file();
         let threads = start_hops(self.hops, hops_tx, stop.clone(), self.orientations.clone())?;
+        let mut odas_out = None;
+        if let Some(out) = self.odas_out {
+            let (rx, task) = tee_odas_out(hops_rx, out);
+            (hops_rx, odas_out) = (rx, Some(task));
+        }
         let poses_rx = start_poses(self.poses)?.map(|rx| share_poses(rx, self.orientations));
         let inputs = LinkInputs { hops: hops_rx, poses: poses_rx, lossless };
         let (link, task) =
@@ -173,6 +181,10 @@ impl LivePlan {
             }
         };
         stop.store(true, Ordering::SeqCst);
+        if let Some(task) = odas_out {
+            // Every hop's object is written once the input has ended.
+            let _ = tokio::time::timeout(Duration::from_secs(2), task).await;
+        }
         tracing::info!(
             "sent {} observations ({} resent, {} acknowledged, {} dropped by the link, {} hops without a pose), \
              {} stream errors, {} commands",
@@ -336,6 +348,27 @@ fn forward_odas(mut frames: mpsc::Receiver<odas::OdasFrame>, out: mpsc::Sender<H
             }
         }
     });
+}
+
+/// Passes the hops on to the link, writing each hop's tracks to `[odas_out]` on the way.
+/// Returns the link's hops and the writer's task.
+fn tee_odas_out(
+    mut hops: mpsc::Receiver<Hop>,
+    out: odas::out::OdasOut,
+) -> (mpsc::Receiver<Hop>, tokio::task::JoinHandle<()>) {
+    let (tx, rx) = mpsc::channel::<Hop>(HOP_QUEUE);
+    let (out_tx, out_rx) = mpsc::channel(HOP_QUEUE);
+    let task = tokio::spawn(out.run(out_rx));
+    tokio::spawn(async move {
+        while let Some(h) = hops.recv().await {
+            // The writer never waits on its socket, so this only waits for file writes.
+            let _ = out_tx.send(h.doas.clone()).await;
+            if tx.send(h).await.is_err() {
+                return;
+            }
+        }
+    });
+    (rx, task)
 }
 
 /// Passes the live poses on to the link, keeping a copy for the DSP thread.

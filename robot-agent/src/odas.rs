@@ -76,6 +76,8 @@ use tokio::sync::mpsc;
 
 use crate::{AgentError, WARNINGS};
 
+pub mod out;
+
 /// How often a followed file is checked for new objects.
 pub const FOLLOW_POLL: Duration = Duration::from_millis(20);
 

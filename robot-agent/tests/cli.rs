@@ -465,7 +465,7 @@ fn run_config_errors_name_the_file_and_field() {
     let example =
         std::fs::read_to_string(Path::new(env!("CARGO_MANIFEST_DIR")).join("../deploy/agent.example.toml"))
             .unwrap()
-            .replacen("pace = \"realtime\"", "pace = \"realtime\"\nchannels = 16", 1);
+            .replacen("\npace = \"realtime\"", "\npace = \"realtime\"\nchannels = 16", 1);
     std::fs::write(&bad, example).unwrap();
     let o = agent(&["run", "--config", bad.to_str().unwrap()], None);
     let stderr = String::from_utf8_lossy(&o.stderr);
@@ -480,4 +480,89 @@ fn run_config_errors_name_the_file_and_field() {
     let stderr = String::from_utf8_lossy(&o.stderr);
     assert!(!o.status.success());
     assert!(stderr.contains("recordings/pioneer-1.wav"), "{stderr}");
+}
+
+/// `[odas_out]`: what the agent sends is also written as ODAS's SST JSON, to a
+/// file and to a tool that listens for it (as odas_web does), and the SST reader
+/// of the ODAS bridge reads it back as the same tracks.
+#[tokio::test(flavor = "multi_thread")]
+async fn run_writes_its_tracks_as_odas_sst_to_a_file_and_a_listening_tool() {
+    let dir = temp_dir("run-odas-out");
+    write_wav(&dir.join("rec.wav"), 4);
+    // A still robot; the recording is placed to end when the agent starts (no start_ns).
+    let tum: String = (0..=100).map(|k| format!("{:.2} 0 0 0 0 0 0 1\n", k as f64 * 0.05)).collect();
+    std::fs::write(dir.join("traj.tum"), tum).unwrap();
+    let coordinator = Coordinator::default();
+    let (addr, server) = serve(coordinator.clone()).await;
+    // The ODAS tool: listens, and reads until the agent closes the connection.
+    let tool = tokio::net::TcpListener::bind("127.0.0.1:0").await.unwrap();
+    let tool_addr = tool.local_addr().unwrap();
+    let received = tokio::spawn(async move {
+        use tokio::io::AsyncReadExt;
+        let (mut s, _) = tool.accept().await.unwrap();
+        let mut bytes = Vec::new();
+        s.read_to_end(&mut bytes).await.unwrap();
+        bytes
+    });
+    let config = format!(
+        r#"robot_id = "sst-robot"
+[coordinator]
+endpoint = "http://{addr}"
+[array]
+preset = "respeaker-4"
+[audio]
+source = "wav"
+path = "rec.wav"
+pace = "asap"
+[pose]
+source = "tum"
+path = "traj.tum"
+start_s = 0.0
+[navigator]
+path = "goals.jsonl"
+[odas_out]
+connect = "{tool_addr}"
+file = "out.json"
+"#
+    );
+    std::fs::write(dir.join("agent.toml"), config).unwrap();
+    let cfg = dir.join("agent.toml");
+    let out = tokio::task::spawn_blocking(move || agent(&["run", "--config", cfg.to_str().unwrap()], None));
+    let out = tokio::time::timeout(Duration::from_secs(60), out).await.expect("agent run timed out").unwrap();
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    server.abort();
+    let from_socket = tokio::time::timeout(Duration::from_secs(10), received).await.unwrap().unwrap();
+    let from_file = std::fs::read(dir.join("out.json")).unwrap();
+    assert_eq!(from_socket, from_file, "the socket and the file carry the same objects");
+
+    let obs = coordinator.0.lock().unwrap().observations.clone();
+    let mut parser = soundmap_agent::odas::SstParser::new();
+    let objects: Vec<_> = parser.feed(&from_file).into_iter().map(Result::unwrap).collect();
+    assert!(!parser.has_partial());
+    // One object per hop (the 1.024 s WAV holds 128 hops of 8 ms), empty ones
+    // included, as ODAS writes them; the coordinator gets the same tracks (the
+    // agent sends a run of empty hops once).
+    assert_eq!(objects.len(), 128);
+    let timing = soundmap_agent::odas::OdasTiming {
+        hop_len: 128,
+        sample_rate_hz: 16_000,
+        start: soundmap_proto::Stamp::ZERO,
+    };
+    let heard: Vec<_> =
+        objects.iter().map(|o| o.to_frame(&timing).unwrap()).filter(|f| !f.doas.is_empty()).collect();
+    let sent: Vec<_> = obs.iter().filter(|o| !o.doas.is_empty()).collect();
+    assert!(heard.len() > 40, "{} hops with tracks", heard.len());
+    assert_eq!(heard.len(), sent.len());
+    for (k, (f, sent)) in heard.iter().zip(&sent).enumerate() {
+        assert_eq!(f.doas.len(), sent.doas.len(), "hop {k} with tracks");
+        for d in &f.doas {
+            let s = sent.doas.iter().find(|s| s.track_id == d.track_id).expect("the same track ids");
+            let v = s.direction_in_array.as_ref().unwrap();
+            let angle = synth::angle_deg(&d.direction_in_array.into_inner(), &Vector3::new(v.x, v.y, v.z));
+            assert!(angle < 0.2, "hop {k}: {angle}° from what was sent (3 printed decimals)");
+        }
+    }
+    assert!(objects.iter().all(|o| o.src.len() == 4), "ODAS's default four slots");
+    assert!(objects.iter().enumerate().all(|(k, o)| o.time_stamp == k as u64 + 1), "timeStamp counts hops");
+    assert!(objects.iter().any(|o| o.src.iter().any(|s| s.id != 0)), "some tracks");
 }

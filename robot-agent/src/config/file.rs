@@ -9,7 +9,7 @@ use soundmap_proto::{RobotId, Stamp};
 
 use super::{
     AgentConfig, AudioConfig, CoordinatorConfig, DoaSource, NavigatorConfig, OdasConfig, OdasInput,
-    PoseConfig, PoseSource, config_error,
+    OdasOutConfig, PoseConfig, PoseSource, config_error,
 };
 use crate::AgentError;
 use crate::audio::{AudioInput, RawFormat, RawLayout};
@@ -34,6 +34,33 @@ pub(super) struct AgentFile {
     navigator: NavigatorFile,
     #[serde(default)]
     link: LinkFile,
+    #[serde(default)]
+    odas_out: Option<OdasOutFile>,
+}
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct OdasOutFile {
+    connect: Option<String>,
+    file: Option<PathBuf>,
+    slots: Option<usize>,
+}
+
+impl OdasOutFile {
+    fn validate(self, c: &Check) -> Result<OdasOutConfig, AgentError> {
+        if self.connect.is_none() && self.file.is_none() {
+            return Err(c.err("odas_out", "give `connect = \"host:port\"`, `file = \"PATH\"` or both"));
+        }
+        let connect = self.connect.map(|a| c.socket(&a, "odas_out.connect")).transpose()?;
+        let slots = self.slots.unwrap_or(crate::odas::out::DEFAULT_SLOTS);
+        if !(1..=crate::odas::out::MAX_SLOTS).contains(&slots) {
+            return Err(c.err(
+                "odas_out.slots",
+                format!("{slots}: must be 1 to {} (ODAS's sst.N, 4 by default)", crate::odas::out::MAX_SLOTS),
+            ));
+        }
+        Ok(OdasOutConfig { connect, file: self.file.map(|f| c.resolve(f)), slots })
+    }
 }
 
 #[derive(Debug, Deserialize)]
@@ -262,7 +289,18 @@ impl AgentFile {
             arrival_tolerance_m: self.navigator.arrival_tolerance_m,
         };
         let link = self.link.validate(&c, &coordinator)?;
-        Ok(AgentConfig { path: path.to_path_buf(), robot_id, coordinator, array, doa, pose, navigator, link })
+        let odas_out = self.odas_out.map(|o| o.validate(&c)).transpose()?;
+        Ok(AgentConfig {
+            path: path.to_path_buf(),
+            robot_id,
+            coordinator,
+            array,
+            doa,
+            pose,
+            navigator,
+            link,
+            odas_out,
+        })
     }
 }
 

@@ -245,3 +245,21 @@ fn odas_files_pace_and_follow() {
     let e = shown_error("source = \"own\"", "source = \"own\"\nfollow = true");
     assert!(e.starts_with("agent.toml: doa.follow: only for doa.source = \"odas\""), "{e}");
 }
+
+#[test]
+fn odas_out_needs_a_sink_and_sane_slots() {
+    let with = |extra: &str| {
+        AgentConfig::parse(&format!("{}\n[odas_out]\n{extra}\n", example()), Path::new("agent.toml"))
+    };
+    let c = with("connect = \"127.0.0.1:9000\"\nfile = \"sst.json\"").unwrap();
+    let o = c.odas_out.unwrap();
+    assert_eq!((o.connect, o.slots), (Some("127.0.0.1:9000".parse().unwrap()), 4));
+    assert!(o.file.unwrap().ends_with("sst.json"));
+    let e = with("").unwrap_err().to_string();
+    assert!(e.starts_with("agent.toml: odas_out: give"), "{e}");
+    let e = with("file = \"a.json\"\nslots = 0").unwrap_err().to_string();
+    assert!(e.starts_with("agent.toml: odas_out.slots: 0: must be 1 to 64"), "{e}");
+    let e = with("connect = \"odas-web\"").unwrap_err().to_string();
+    assert!(e.starts_with("agent.toml: odas_out.connect"), "{e}");
+    assert_eq!(AgentConfig::parse(&example(), Path::new("agent.toml")).unwrap().odas_out, None);
+}
