@@ -21,7 +21,10 @@
 //!    runs when the convex step would leave θ out of the band, and its
 //!    placement is kept when θ ends nearer the band;
 //! 5. every waypoint is checked against the hard constraints (step, range,
-//!    free space with clearance, separation) before it becomes a [`Goal`].
+//!    free space with clearance, separation, and the keep-out along the
+//!    source's path from where it is to where it is predicted: `cycle::KeepOut`)
+//!    before it becomes a [`Goal`]; the sampling search offers only spots that
+//!    keep it.
 //!
 //! Before any position exists, [`Planner::plan_from_bearings`] moves the
 //! robots from what they hear ([`start`]): spread across a heard bearing,
@@ -236,7 +239,12 @@ impl Planner {
         };
 
         // This cycle's waypoints.
-        let cycle = match self.waypoints(&src, robots, &per_robot, half, step) {
+        let keep = cycle::KeepOut {
+            now: Point2::new(s.position_in_map.x, s.position_in_map.y),
+            ahead: centre,
+            radius_m: cfg.min_range_m,
+        };
+        let cycle = match self.waypoints(&src, &keep, robots, &per_robot, half, step) {
             Ok(w) => w,
             Err(reason) => return PlanOutcome::Infeasible(reason),
         };

@@ -186,3 +186,34 @@ mod tests {
         assert_eq!(range_bounds(8.0, 1.0, 5.0, 1.0), (1.0, 7.5));
     }
 }
+
+/// The keep-out around a moving source: every point within `radius_m` of the
+/// segment from where the source is estimated now to where it is predicted
+/// `source_lead_s` ahead (the planning centre). A disc around the predicted
+/// point alone would let a goal lie next to a walker that has not got there
+/// yet (1 m ahead at 1 m/s, as far as the keep-out radius).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub(crate) struct KeepOut {
+    /// The source now (map xy, m).
+    pub now: Point2<f64>,
+    /// The source predicted (map xy, m).
+    pub ahead: Point2<f64>,
+    /// Keep-out radius, r_min (m).
+    pub radius_m: f64,
+}
+
+impl KeepOut {
+    /// Distance from `q` to the source's predicted path (m).
+    pub fn clearance(&self, q: &Point2<f64>) -> f64 {
+        let d = self.ahead - self.now;
+        let len2 = d.norm_squared();
+        let t = if len2 > 0.0 { ((q - self.now).dot(&d) / len2).clamp(0.0, 1.0) } else { 0.0 };
+        (q - (self.now + d * t)).norm()
+    }
+
+    /// Whether a robot at `from` may go to `to`: outside the keep-out, or, for
+    /// a robot already inside it, no nearer the path than it is.
+    pub fn allows(&self, from: &Point2<f64>, to: &Point2<f64>) -> bool {
+        self.clearance(to) >= self.radius_m.min(self.clearance(from)) - 1e-6
+    }
+}

@@ -18,7 +18,7 @@
 use nalgebra::{Isometry3, Matrix3, Point2, Point3, Vector3};
 
 use super::config::SamplingConfig;
-use super::cycle::{Separation, polar};
+use super::cycle::{KeepOut, Separation, polar};
 use super::free_space::FreeSpace;
 use super::pose::sensor_at;
 use crate::uncertainty::fisher_information;
@@ -69,12 +69,13 @@ pub(crate) fn search(
     separations: &[Separation],
     free: &FreeSpace,
     band_deg: (f64, f64),
+    keep: &KeepOut,
     cfg: &SamplingConfig,
 ) -> SampleOutcome {
     let centre = Point2::new(source.x, source.y);
     let mut cands: Vec<Vec<Candidate>> = Vec::with_capacity(robots.len());
     for (i, r) in robots.iter().enumerate() {
-        let c = candidates(source, &centre, r, free, cfg);
+        let c = candidates(source, &centre, r, free, keep, cfg);
         if c.is_empty() {
             return SampleOutcome::NoCandidates(
                 i,
@@ -105,6 +106,7 @@ fn candidates(
     centre: &Point2<f64>,
     r: &SampleRobot,
     free: &FreeSpace,
+    keep: &KeepOut,
     cfg: &SamplingConfig,
 ) -> Vec<Candidate> {
     let (lo, hi) = r.range;
@@ -133,7 +135,7 @@ fn candidates(
         .into_iter()
         .filter(|q| {
             let rho = (q - centre).norm();
-            (q - r.p0).norm() <= reach && rho >= lo && rho <= hi && free.is_free(q)
+            (q - r.p0).norm() <= reach && rho >= lo && rho <= hi && free.is_free(q) && keep.allows(&r.p0, q)
         })
         .map(|spot| {
             let s = sensor_at(&spot, source, &r.base_from_array, r.sigma_rad);
@@ -286,6 +288,9 @@ mod tests {
     use crate::planner::free_space::FreeSpaceConfig;
     use crate::uncertainty::angle_at_deg;
 
+    /// The keep-out of a still source at the origin.
+    const STILL: KeepOut = KeepOut { now: Point2::new(0.0, 0.0), ahead: Point2::new(0.0, 0.0), radius_m: 1.0 };
+
     fn robot(x: f64, y: f64, step: f64) -> SampleRobot {
         SampleRobot {
             p0: Point2::new(x, y),
@@ -303,7 +308,7 @@ mod tests {
         let src = Point3::origin();
         let robots = [robot(3.0, 0.25, 10.0), robot(3.0, -0.25, 10.0)];
         let SampleOutcome::Found(p) =
-            search(&src, &robots, &[], &free, (40.0, 140.0), &SamplingConfig::default())
+            search(&src, &robots, &[], &free, (40.0, 140.0), &STILL, &SamplingConfig::default())
         else {
             panic!()
         };
@@ -322,7 +327,30 @@ mod tests {
         let mut r = robot(3.0, 0.0, 1.0);
         r.range = (1.0, 2.0);
         let robots = [r.clone(), r];
-        let out = search(&Point3::origin(), &robots, &[], &free, (40.0, 140.0), &SamplingConfig::default());
+        let out =
+            search(&Point3::origin(), &robots, &[], &free, (40.0, 140.0), &STILL, &SamplingConfig::default());
         assert!(matches!(out, SampleOutcome::NoCandidates(0, _)), "{out:?}");
+    }
+
+    #[test]
+    fn spots_beside_the_walkers_path_are_not_offered() {
+        // A walker at (-1, 0) predicted at the origin: spots within 1 m of the
+        // segment between are out, even where they are 1 m from the origin.
+        let walker = KeepOut { now: Point2::new(-1.0, 0.0), ahead: Point2::new(0.0, 0.0), radius_m: 1.0 };
+        assert!((walker.clearance(&Point2::new(-0.5, 0.8)) - 0.8).abs() < 1e-12);
+        assert!((walker.clearance(&Point2::new(-2.0, 0.0)) - 1.0).abs() < 1e-12);
+        assert!(!walker.allows(&Point2::new(-1.0, 2.0), &Point2::new(-0.7, 0.9)));
+        // A robot already inside may move, but not nearer the path.
+        assert!(walker.allows(&Point2::new(-0.5, 0.5), &Point2::new(-0.5, 0.7)));
+        assert!(!walker.allows(&Point2::new(-0.5, 0.5), &Point2::new(-0.5, 0.4)));
+        let free = FreeSpace::new(&FreeSpaceConfig::default(), 0.3);
+        let robots = [robot(-1.0, 1.6, 1.0), robot(1.5, 0.0, 1.0)];
+        let src = Point3::origin();
+        let SampleOutcome::Found(p) =
+            search(&src, &robots, &[], &free, (40.0, 140.0), &walker, &SamplingConfig::default())
+        else {
+            panic!()
+        };
+        assert!(p.iter().all(|q| walker.clearance(q) >= 1.0 - 1e-6), "{p:?}");
     }
 }

@@ -6,7 +6,7 @@
 use nalgebra::{Point2, Point3};
 use soundmap_proto::RepositionReason;
 
-use super::cycle::{self, CycleRobot, Separation};
+use super::cycle::{self, CycleRobot, KeepOut, Separation};
 use super::outcome::{Goal, InfeasibleReason};
 use super::pose::{facing_pose, sensor_at};
 use super::qp::{self, QpOutcome};
@@ -34,6 +34,7 @@ impl Planner {
     pub(super) fn waypoints(
         &self,
         src: &Point3<f64>,
+        keep: &KeepOut,
         robots: &[RobotState],
         per_robot: &[RobotCycle],
         half: f64,
@@ -84,7 +85,7 @@ impl Planner {
         let seps = cycle::separations(&p0, &heading, cfg.min_separation_m, step);
         if why_not_qp.is_none() {
             match qp::solve(&centre, &cycle_robots, &seps, cfg.goal_weight) {
-                QpOutcome::Solved(w) if self.check(&centre, per_robot, &w, &seps, step) => {
+                QpOutcome::Solved(w) if self.check(&centre, keep, per_robot, &w, &seps, step) => {
                     // The way to the target pattern can pass through a poor
                     // geometry (a robot swinging round a source that walked
                     // close to it). Then the sampling search, which scores this
@@ -94,8 +95,8 @@ impl Planner {
                         let sample_robots = sample_robots(robots, per_robot, &cycle_robots, step);
                         let band = (cfg.theta_min_deg, cfg.theta_max_deg);
                         if let SampleOutcome::Found(v) =
-                            sampling::search(src, &sample_robots, &seps, &self.free, band, &cfg.sampling)
-                            && self.check(&centre, per_robot, &v, &seps, step)
+                            sampling::search(src, &sample_robots, &seps, &self.free, band, keep, &cfg.sampling)
+                            && self.check(&centre, keep, per_robot, &v, &seps, step)
                             && self.degrees_out_of_band(src, robots, &v) < outside
                         {
                             return Ok(Waypoints {
@@ -125,8 +126,8 @@ impl Planner {
         let sample_robots = sample_robots(robots, per_robot, &cycle_robots, step);
         let band = (cfg.theta_min_deg, cfg.theta_max_deg);
         let why = why_not_qp.unwrap_or_default();
-        match sampling::search(src, &sample_robots, &seps, &self.free, band, &cfg.sampling) {
-            SampleOutcome::Found(w) if self.check(&centre, per_robot, &w, &seps, step) => {
+        match sampling::search(src, &sample_robots, &seps, &self.free, band, keep, &cfg.sampling) {
+            SampleOutcome::Found(w) if self.check(&centre, keep, per_robot, &w, &seps, step) => {
                 Ok(Waypoints { spots: w, separations: seps, used_fallback: true, why_fallback: Some(why) })
             }
             SampleOutcome::Found(_) => Err(InfeasibleReason::NoJointPlacement {
@@ -164,10 +165,12 @@ impl Planner {
         (self.config.theta_min_deg - theta).max(theta - self.config.theta_max_deg).max(0.0)
     }
 
-    /// The hard constraints: step, range bounds, free space, separations.
+    /// The hard constraints: step, range bounds, free space, the keep-out
+    /// along the source's predicted path, separations.
     fn check(
         &self,
         centre: &Point2<f64>,
+        keep: &KeepOut,
         per_robot: &[RobotCycle],
         w: &[Point2<f64>],
         seps: &[Separation],
@@ -182,6 +185,7 @@ impl Planner {
                     && rho >= c.bounds.0 - CHECK_TOL_M
                     && rho <= c.bounds.1 + CHECK_TOL_M
                     && self.free.is_free(q)
+                    && keep.allows(&c.p0, q)
             })
             && seps.iter().all(|s| (w[s.i] - w[s.j]).norm() >= s.min_m - CHECK_TOL_M)
     }
