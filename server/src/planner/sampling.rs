@@ -289,7 +289,8 @@ mod tests {
     use crate::uncertainty::angle_at_deg;
 
     /// The keep-out of a still source at the origin.
-    const STILL: KeepOut = KeepOut { now: Point2::new(0.0, 0.0), ahead: Point2::new(0.0, 0.0), radius_m: 1.0 };
+    const STILL: KeepOut =
+        KeepOut { now: Point2::new(0.0, 0.0), ahead: Point2::new(0.0, 0.0), radius_m: 1.0 };
 
     fn robot(x: f64, y: f64, step: f64) -> SampleRobot {
         SampleRobot {

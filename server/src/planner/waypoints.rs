@@ -94,9 +94,15 @@ impl Planner {
                     if outside > 0.0 {
                         let sample_robots = sample_robots(robots, per_robot, &cycle_robots, step);
                         let band = (cfg.theta_min_deg, cfg.theta_max_deg);
-                        if let SampleOutcome::Found(v) =
-                            sampling::search(src, &sample_robots, &seps, &self.free, band, keep, &cfg.sampling)
-                            && self.check(&centre, keep, per_robot, &v, &seps, step)
+                        if let SampleOutcome::Found(v) = sampling::search(
+                            src,
+                            &sample_robots,
+                            &seps,
+                            &self.free,
+                            band,
+                            keep,
+                            &cfg.sampling,
+                        ) && self.check(&centre, keep, per_robot, &v, &seps, step)
                             && self.degrees_out_of_band(src, robots, &v) < outside
                         {
                             return Ok(Waypoints {
