@@ -62,7 +62,9 @@
 //! Live hops stamped ahead of the agent's clock (ODAS fed from a file at full
 //! speed, or a start in the future) are held until due, with a rate-limited
 //! warning, instead of being sent early for the coordinator to reject one by
-//! one; holding stops reading, so TCP slows ODAS down to real time.
+//! one; holding stops reading, so TCP slows ODAS down to real time. A hop
+//! more than [`MAX_HOLD_NS`] (10 s) ahead is skipped with a warning instead:
+//! a wrong `start_ns` or counter must not stall the bridge.
 
 use std::path::{Path, PathBuf};
 use std::time::Duration;
@@ -86,6 +88,10 @@ pub const WAIT_REPORT: Duration = Duration::from_secs(30);
 
 /// A hop further ahead of the agent's clock than this is worth a warning.
 const AHEAD_WARN_NS: i64 = 50_000_000;
+
+/// A live hop further ahead than this is not held but skipped: a broken
+/// counter or `start_ns` must not stall the bridge (ns).
+pub const MAX_HOLD_NS: i64 = 10_000_000_000;
 
 /// Accepted deviation of an SST direction's norm from 1 (3-decimal printing).
 pub const NORM_TOLERANCE: f64 = 0.05;
@@ -318,11 +324,23 @@ pub enum LiveStart {
 }
 
 /// Holds a live hop until its stamp is due on the agent's clock (see the
-/// module documentation); returns at once for a hop that is not ahead.
-async fn hold_until_due(name: &str, frame: &OdasFrame) {
+/// module documentation); returns at once for a hop that is not ahead, and
+/// `false` (skip it) for one more than [`MAX_HOLD_NS`] ahead.
+async fn hold_until_due(name: &str, frame: &OdasFrame) -> bool {
     let ahead_ns = frame.stamp - Stamp::now();
     if ahead_ns <= 0 {
-        return;
+        return true;
+    }
+    if ahead_ns > MAX_HOLD_NS {
+        warn_limited!(
+            WARNINGS,
+            "odas_far_ahead",
+            "{name}: timeStamp {} is {:.1} s ahead of this clock (a wrong doa.start_ns or hop \
+             counter?); skipped",
+            frame.time_stamp,
+            ahead_ns as f64 * 1e-9
+        );
+        return false;
     }
     if ahead_ns > AHEAD_WARN_NS {
         warn_limited!(
@@ -335,6 +353,7 @@ async fn hold_until_due(name: &str, frame: &OdasFrame) {
         );
     }
     tokio::time::sleep(Duration::from_nanos(ahead_ns as u64)).await;
+    true
 }
 
 /// Converts parsed objects of a live stream (socket or followed file) and
@@ -362,7 +381,9 @@ async fn forward_live(
         });
         match sst.to_frame(&t) {
             Ok(frame) => {
-                hold_until_due(name, &frame).await;
+                if !hold_until_due(name, &frame).await {
+                    continue;
+                }
                 *last_hop = Some(frame.time_stamp);
                 *sent += 1;
                 if tx.send(frame).await.is_err() {

@@ -266,3 +266,22 @@ async fn hops_ahead_of_the_agents_clock_are_held_until_due() {
     }
     bridge.abort();
 }
+
+#[tokio::test]
+async fn hops_far_ahead_are_skipped_not_held() {
+    let listener = tokio::net::TcpListener::bind("127.0.0.1:0").await.unwrap();
+    let addr = listener.local_addr().unwrap();
+    let (tx, mut rx) = tokio::sync::mpsc::channel(16);
+    let start = Stamp::now().plus_ns(-1_000_000_000);
+    let bridge = tokio::spawn(odas::serve_tcp(listener, 128, 16_000, LiveStart::Fixed(start), tx));
+    // A broken counter: an object 2.5 hours ahead, then the fixture's objects.
+    let broken = fixture_objects()[1].replace("\"timeStamp\": 2", "\"timeStamp\": 1000000");
+    let mut odas_side = tokio::net::TcpStream::connect(addr).await.unwrap();
+    odas_side.write_all(broken.as_bytes()).await.unwrap();
+    odas_side.write_all(&std::fs::read(fixture()).unwrap()).await.unwrap();
+    // Skipped, not held for hours: the next objects come at once.
+    for k in 1..=6u64 {
+        assert_eq!(next(&mut rx).await.time_stamp, k);
+    }
+    bridge.abort();
+}
