@@ -489,7 +489,9 @@ fn run_config_errors_name_the_file_and_field() {
 async fn run_writes_its_tracks_as_odas_sst_to_a_file_and_a_listening_tool() {
     let dir = temp_dir("run-odas-out");
     write_wav(&dir.join("rec.wav"), 4);
-    // A still robot; the recording is placed to end when the agent starts (no start_ns).
+    // A still robot; no start_ns: sample 0 is the agent's start. The file is
+    // read in real time, as a live robot's audio comes (with `asap` the tool
+    // would miss the objects it cannot take at once, by design).
     let tum: String = (0..=100).map(|k| format!("{:.2} 0 0 0 0 0 0 1\n", k as f64 * 0.05)).collect();
     std::fs::write(dir.join("traj.tum"), tum).unwrap();
     let coordinator = Coordinator::default();
@@ -513,7 +515,7 @@ preset = "respeaker-4"
 [audio]
 source = "wav"
 path = "rec.wav"
-pace = "asap"
+pace = "realtime"
 [pose]
 source = "tum"
 path = "traj.tum"
@@ -565,4 +567,36 @@ file = "out.json"
     assert!(objects.iter().all(|o| o.src.len() == 4), "ODAS's default four slots");
     assert!(objects.iter().enumerate().all(|(k, o)| o.time_stamp == k as u64 + 1), "timeStamp counts hops");
     assert!(objects.iter().any(|o| o.src.iter().any(|s| s.id != 0)), "some tracks");
+}
+
+/// `pace = "asap"` without `start_ns`: the recording is placed to end when
+/// the agent starts, so every stamp is in the past and none is lost.
+#[tokio::test(flavor = "multi_thread")]
+async fn run_places_an_asap_recording_before_its_start() {
+    let dir = temp_dir("run-asap");
+    write_wav(&dir.join("rec.wav"), 4);
+    let tum: String = (0..=100).map(|k| format!("{:.2} 0 0 0 0 0 0 1\n", k as f64 * 0.05)).collect();
+    std::fs::write(dir.join("traj.tum"), tum).unwrap();
+    let coordinator = Coordinator::default();
+    let (addr, server) = serve(coordinator.clone()).await;
+    let config = format!(
+        "robot_id = \"asap-robot\"\n[coordinator]\nendpoint = \"http://{addr}\"\n[array]\npreset = \"respeaker-4\"\n\
+         [audio]\nsource = \"wav\"\npath = \"rec.wav\"\npace = \"asap\"\n\
+         [pose]\nsource = \"tum\"\npath = \"traj.tum\"\nstart_s = 0.0\n[navigator]\npath = \"goals.jsonl\"\n"
+    );
+    std::fs::write(dir.join("agent.toml"), config).unwrap();
+    let cfg = dir.join("agent.toml");
+    let before = soundmap_proto::Stamp::now().as_ns();
+    let out = tokio::task::spawn_blocking(move || agent(&["run", "--config", cfg.to_str().unwrap()], None));
+    let out = tokio::time::timeout(Duration::from_secs(60), out).await.expect("agent run timed out").unwrap();
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    server.abort();
+    let after = soundmap_proto::Stamp::now().as_ns();
+    let obs = coordinator.0.lock().unwrap().observations.clone();
+    assert!(obs.len() > 40, "{} observations", obs.len());
+    let (first, last) = (obs[0].stamp_ns, obs.last().unwrap().stamp_ns);
+    // The 1.024 s file ends at the agent's start (between `before` and `after`).
+    assert!(last <= after, "the last hop is ahead of the clock");
+    assert!(first >= before - 1_100_000_000 && first <= after - 1_000_000_000, "first hop at {first}");
+    assert!(String::from_utf8_lossy(&out.stderr).contains("0 dropped by the link"));
 }

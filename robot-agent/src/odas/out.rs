@@ -13,8 +13,10 @@
 //!
 //! Sinks: a file (written and flushed object by object, as ODAS's file sink
 //! does, so a tool can follow it) and a TCP connection to a tool that listens
-//! for SST (as ODAS's socket sink connects out). The connection is retried
-//! every second; objects produced while it is down or slow are dropped
+//! for SST (as ODAS's socket sink connects out). A tool already listening is
+//! connected before the first hop; otherwise the connection is retried
+//! every second. Objects produced while it is down or slow (more than 64
+//! behind, as a file read `asap` easily is) are dropped
 //! (counted in a rate-limited warning): a viewer wants the latest, and the
 //! stream to the coordinator never waits for it.
 
@@ -106,6 +108,8 @@ pub struct OdasOut {
     writer: SstWriter,
     file: Option<(String, std::io::BufWriter<std::fs::File>)>,
     connect: Option<SocketAddr>,
+    /// The connection made at start, when the tool was already listening.
+    connected: Option<std::net::TcpStream>,
 }
 
 impl OdasOut {
@@ -119,14 +123,25 @@ impl OdasOut {
             }
             None => None,
         };
-        Ok(OdasOut { writer: SstWriter::new(config.slots), file, connect: config.connect })
+        // A tool already listening is connected before the first hop, so it
+        // sees every object from the first.
+        let connected = config.connect.and_then(|addr| {
+            std::net::TcpStream::connect_timeout(&addr, RECONNECT)
+                .and_then(|s| s.set_nonblocking(true).map(|()| s))
+                .inspect_err(|e| {
+                    tracing::warn!("odas_out: cannot connect to {addr} ({e}); retrying every second")
+                })
+                .ok()
+        });
+        Ok(OdasOut { writer: SstWriter::new(config.slots), file, connect: config.connect, connected })
     }
 
     /// Writes every hop's tracks until `hops` closes (spawn it on the runtime).
     pub async fn run(mut self, mut hops: mpsc::Receiver<Vec<TrackedDoa>>) {
+        let first = self.connected.take().and_then(|s| tokio::net::TcpStream::from_std(s).ok());
         let mut socket = self.connect.map(|addr| {
             let (tx, rx) = mpsc::channel::<String>(SOCKET_QUEUE);
-            (addr, tx, tokio::spawn(serve_socket(addr, rx)))
+            (addr, tx, tokio::spawn(serve_socket(addr, first, rx)))
         });
         while let Some(doas) = hops.recv().await {
             let object = self.writer.object(&doas);
@@ -153,11 +168,20 @@ impl OdasOut {
     }
 }
 
-/// Connects to `addr` (retrying every [`RECONNECT`]) and writes the objects.
-async fn serve_socket(addr: SocketAddr, mut objects: mpsc::Receiver<String>) {
-    let mut reported = false;
+/// Writes the objects to `addr` over `first`, else connecting (retrying every
+/// [`RECONNECT`]).
+async fn serve_socket(
+    addr: SocketAddr,
+    mut first: Option<tokio::net::TcpStream>,
+    mut objects: mpsc::Receiver<String>,
+) {
+    let mut reported = first.is_none();
     loop {
-        let mut stream = match tokio::net::TcpStream::connect(addr).await {
+        let connection = match first.take() {
+            Some(s) => Ok(s),
+            None => tokio::net::TcpStream::connect(addr).await,
+        };
+        let mut stream = match connection {
             Ok(s) => s,
             Err(e) => {
                 if !reported {
