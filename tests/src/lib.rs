@@ -12,12 +12,14 @@
 //! - [`rosbag`]: ROS 2 bags (MCAP, CDR: audio_common audio, tf) converted for the replay.
 //! - [`viewer`]: the Foxglove live view, MCAP recording and real-time pacing of a run.
 //! - [`mcap_replay`]: a coordinator re-run on the observations of an MCAP recording.
+//! - [`live_check`]: a logging coordinator for tests of the live agent against the replay.
 //! - [`report`]: what a run records, and its CSV/JSON reports and plots.
 //! - [`error`]: the crate's error enum, [`SimError`].
 
 pub mod acoustics;
 pub mod error;
 pub mod kinematics;
+pub mod live_check;
 pub mod mcap_replay;
 pub mod odas_like;
 pub mod pytools;

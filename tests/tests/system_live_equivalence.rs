@@ -9,13 +9,12 @@
 //! must hold the same observations per robot: same sequence numbers, stamps,
 //! poses, DoAs and silences.
 
-use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
 use soundmap_agent::config::AgentConfig;
 use soundmap_agent::live::LivePlan;
-use soundmap_server::CoordinatorConfig;
+use soundmap_sim::live_check::{LoggingCoordinator, observations_by_robot};
 use soundmap_sim::replay::{ReplayArgs, parse_robot, replay};
 use soundmap_sim::runner::{RunOptions, SIM_EPOCH, run};
 use soundmap_sim::scenario::Scenario;
@@ -25,18 +24,6 @@ fn scratch(name: &str) -> PathBuf {
     let _ = std::fs::remove_dir_all(&dir);
     std::fs::create_dir_all(&dir).unwrap();
     dir
-}
-
-/// Observation lines per robot, in the order the coordinator accepted them.
-fn observations_by_robot(path: &Path) -> BTreeMap<String, Vec<serde_json::Value>> {
-    let text = std::fs::read_to_string(path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
-    let mut out: BTreeMap<String, Vec<serde_json::Value>> = BTreeMap::new();
-    for line in text.lines() {
-        let v: serde_json::Value = serde_json::from_str(line).unwrap();
-        let id = v["robot_id"].as_str().unwrap().to_owned();
-        out.entry(id).or_default().push(v);
-    }
-    out
 }
 
 fn agent_toml(id: &str, endpoint: &str, dir: &Path, array: &str) -> String {
@@ -125,20 +112,10 @@ fn live_agent_and_replay_send_the_same_observations() {
     // reads a minute after the recording's epoch at the start and runs in real
     // time: the coordinator refuses stamps older than `limits.max_past_ms` or
     // ahead of its clock, and the agents send the recording as fast as they can).
-    let live_log = dir.join("live-observations.jsonl");
-    let runtime = tokio::runtime::Builder::new_multi_thread().worker_threads(2).enable_all().build().unwrap();
-    let mut config = CoordinatorConfig::default();
-    config.output.observations_jsonl = Some(live_log.clone());
-    // The agents send a 4 s recording as fast as they can (~0.5 s): far over a
-    // live robot's rate, which the coordinator bounds per stream (real seconds).
-    config.server.max_observation_rate_hz = 100_000.0;
-    let coordinator = runtime.block_on(async {
-        let listener = tokio::net::TcpListener::bind("127.0.0.1:0").await.unwrap();
-        let clock =
-            WallClockFrom { epoch: SIM_EPOCH.plus_ns(60_000_000_000), started: std::time::Instant::now() };
-        soundmap_server::service::start(config, Arc::new(clock), listener).await.unwrap()
-    });
-    let endpoint = format!("http://{}", coordinator.local_addr);
+    let clock =
+        WallClockFrom { epoch: SIM_EPOCH.plus_ns(60_000_000_000), started: std::time::Instant::now() };
+    let coordinator = LoggingCoordinator::start(dir.join("live-observations.jsonl"), Arc::new(clock));
+    let endpoint = coordinator.endpoint();
     let agents: Vec<_> = scenario
         .robots
         .iter()
@@ -155,7 +132,8 @@ fn live_agent_and_replay_send_the_same_observations() {
         let stats = a.join().unwrap();
         assert_eq!((stats.pending, stats.dropped, stats.stream_errors), (0, 0, 0), "{stats:?}");
     }
-    runtime.block_on(coordinator.shutdown()).unwrap();
+    let live_log = coordinator.log.clone();
+    coordinator.shutdown();
 
     let live = observations_by_robot(&live_log);
     let replayed = observations_by_robot(&replay_log);

@@ -11,15 +11,14 @@
 //! `cargo test -p soundmap-sim --test system_odas_agent -- --nocapture`
 //! prints how long the live agents took for the 60 s files.
 
-use std::collections::BTreeMap;
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 use std::sync::Arc;
 use std::time::Instant;
 
 use soundmap_agent::config::AgentConfig;
 use soundmap_agent::live::LivePlan;
-use soundmap_server::CoordinatorConfig;
 use soundmap_server::clock::SystemClock;
+use soundmap_sim::live_check::{LoggingCoordinator, observations_by_robot};
 use soundmap_sim::odas_like::trial::{OdasTrialSpec, write_trial};
 use soundmap_sim::replay::{ReplayArgs, parse_robot, replay};
 
@@ -28,17 +27,6 @@ fn scratch(name: &str) -> PathBuf {
     let _ = std::fs::remove_dir_all(&dir);
     std::fs::create_dir_all(&dir).unwrap();
     dir
-}
-
-/// Observation lines per robot, in the order the coordinator accepted them.
-fn observations_by_robot(path: &Path) -> BTreeMap<String, Vec<serde_json::Value>> {
-    let text = std::fs::read_to_string(path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
-    let mut out: BTreeMap<String, Vec<serde_json::Value>> = BTreeMap::new();
-    for line in text.lines() {
-        let v: serde_json::Value = serde_json::from_str(line).unwrap();
-        out.entry(v["robot_id"].as_str().unwrap().to_owned()).or_default().push(v);
-    }
-    out
 }
 
 #[test]
@@ -67,18 +55,10 @@ fn live_agents_send_odas_files_asap_as_the_replay_does() {
     replay(&args).unwrap();
 
     // (2) the live agents, asap, against a coordinator on the system clock.
-    let live_log = dir.join("live-observations.jsonl");
-    let runtime = tokio::runtime::Builder::new_multi_thread().worker_threads(2).enable_all().build().unwrap();
-    let mut config = CoordinatorConfig::default();
-    config.output.observations_jsonl = Some(live_log.clone());
-    // 7,500 observations per robot in well under a second: far over a live
-    // robot's rate, which the coordinator bounds per stream (real seconds).
-    config.server.max_observation_rate_hz = 100_000.0;
-    let coordinator = runtime.block_on(async {
-        let listener = tokio::net::TcpListener::bind("127.0.0.1:0").await.unwrap();
-        soundmap_server::service::start(config, Arc::new(SystemClock), listener).await.unwrap()
-    });
-    let endpoint = format!("http://{}", coordinator.local_addr);
+    // 7,500 observations per robot in well under a second (the coordinator's
+    // per-stream rate bound lifted).
+    let coordinator = LoggingCoordinator::start(dir.join("live-observations.jsonl"), Arc::new(SystemClock));
+    let endpoint = coordinator.endpoint();
     let t0 = Instant::now();
     let agents: Vec<_> = trial
         .robots
@@ -109,7 +89,8 @@ fn live_agents_send_odas_files_asap_as_the_replay_does() {
         assert_eq!((stats.pending, stats.dropped, stats.stream_errors), (0, 0, 0), "{stats:?}");
     }
     let live_s = t0.elapsed().as_secs_f64();
-    runtime.block_on(coordinator.shutdown()).unwrap();
+    let live_log = coordinator.log.clone();
+    coordinator.shutdown();
 
     let live = observations_by_robot(&live_log);
     let replayed = observations_by_robot(&replay_log);
