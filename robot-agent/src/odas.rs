@@ -424,7 +424,17 @@ pub async fn serve_tcp(
     let mut waiting_since = std::time::Instant::now();
     while !tx.is_closed() {
         let (mut stream, peer) = match tokio::time::timeout(WAIT_REPORT, listener.accept()).await {
-            Ok(r) => r.map_err(|source| AgentError::Io { path: local.clone().into(), source })?,
+            Ok(Ok(accepted)) => accepted,
+            Ok(Err(e)) => {
+                // A failed accept (an aborted connection, no descriptor left) is not the end of the bridge.
+                warn_limited!(
+                    WARNINGS,
+                    "odas_accept",
+                    "{local}: cannot accept a connection: {e}; still listening"
+                );
+                tokio::time::sleep(Duration::from_millis(100)).await;
+                continue;
+            }
             Err(_) => {
                 tracing::warn!(
                     "no ODAS connected on {local} for {:.0} s; still listening",

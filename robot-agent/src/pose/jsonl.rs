@@ -140,7 +140,7 @@ pub async fn read_feed<R: AsyncBufRead + Unpin>(
             }
             Err(e) => {
                 stats.rejected += 1;
-                tracing::warn!("{e}; line skipped");
+                soundmap_proto::warn_limited!(crate::WARNINGS, "pose_line", "{e}; line skipped");
             }
         }
     }
@@ -152,10 +152,19 @@ pub async fn read_feed<R: AsyncBufRead + Unpin>(
 pub async fn serve_tcp(listener: TcpListener, tx: mpsc::Sender<StampedPose>) -> Result<(), AgentError> {
     let local = listener.local_addr().map(|a| a.to_string()).unwrap_or_else(|_| "pose socket".into());
     while !tx.is_closed() {
-        let (stream, peer) = listener
-            .accept()
-            .await
-            .map_err(|source| AgentError::Io { path: local.clone().into(), source })?;
+        let (stream, peer) = match listener.accept().await {
+            Ok(accepted) => accepted,
+            Err(e) => {
+                // A failed accept (an aborted connection, no descriptor left) is not the end of the feed.
+                soundmap_proto::warn_limited!(
+                    crate::WARNINGS,
+                    "pose_accept",
+                    "{local}: cannot accept a connection: {e}; still listening"
+                );
+                tokio::time::sleep(std::time::Duration::from_millis(100)).await;
+                continue;
+            }
+        };
         let name = format!("pose feed {peer}");
         tracing::info!("{name}: connected");
         match read_feed(tokio::io::BufReader::new(stream), &name, &tx).await {
