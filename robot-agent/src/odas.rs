@@ -356,49 +356,76 @@ async fn hold_until_due(name: &str, frame: &OdasFrame) -> bool {
     true
 }
 
-/// Converts parsed objects of a live stream (socket or followed file) and
-/// sends them, anchoring `timing` at the first one when it is not set and
-/// holding hops until due. Returns `false` once `tx` is closed.
-async fn forward_live(
-    name: &str,
-    parsed: Vec<Result<SstFrame, (usize, String)>>,
-    timing: &mut Option<OdasTiming>,
-    (hop_len, sample_rate_hz): (u32, u32),
-    sent: &mut u64,
-    last_hop: &mut Option<u64>,
-    tx: &mpsc::Sender<OdasFrame>,
-) -> bool {
-    for r in parsed {
-        let sst = match r {
-            Ok(f) => f,
-            Err((line, message)) => {
-                warn_limited!(WARNINGS, "odas_malformed", "{name}: line {line}: {message}; object skipped");
-                continue;
-            }
-        };
-        let t = *timing.get_or_insert_with(|| {
-            OdasTiming::anchored(hop_len, sample_rate_hz, sst.time_stamp, Stamp::now())
-        });
-        match sst.to_frame(&t) {
-            Ok(frame) => {
-                if !hold_until_due(name, &frame).await {
+/// One live stream (a socket connection, a followed file): how its hop
+/// counter maps to time, and what it has sent.
+struct LiveStream<'a> {
+    name: String,
+    hop_len: u32,
+    sample_rate_hz: u32,
+    /// `None` until anchored at the next object (see the clock rule).
+    timing: Option<OdasTiming>,
+    sent: u64,
+    last_hop: Option<u64>,
+    tx: &'a mpsc::Sender<OdasFrame>,
+}
+
+impl<'a> LiveStream<'a> {
+    fn new(name: String, hop_len: u32, sample_rate_hz: u32, tx: &'a mpsc::Sender<OdasFrame>) -> Self {
+        LiveStream { name, hop_len, sample_rate_hz, timing: None, sent: 0, last_hop: None, tx }
+    }
+
+    /// Times hop 1 at `start`.
+    fn start_at(&mut self, start: Stamp) {
+        self.timing = Some(OdasTiming { hop_len: self.hop_len, sample_rate_hz: self.sample_rate_hz, start });
+    }
+
+    /// Times hop `time_stamp` at now.
+    fn anchor_now(&mut self, time_stamp: u64) {
+        self.timing = Some(OdasTiming::anchored(self.hop_len, self.sample_rate_hz, time_stamp, Stamp::now()));
+    }
+
+    /// Converts and sends parsed objects, anchoring the timing at the first
+    /// one when it is not set and holding hops until due. Returns `false` once
+    /// the receiver is gone.
+    async fn forward(&mut self, parsed: Vec<Result<SstFrame, (usize, String)>>) -> bool {
+        let name = &self.name;
+        for r in parsed {
+            let sst = match r {
+                Ok(f) => f,
+                Err((line, message)) => {
+                    warn_limited!(
+                        WARNINGS,
+                        "odas_malformed",
+                        "{name}: line {line}: {message}; object skipped"
+                    );
                     continue;
                 }
-                *last_hop = Some(frame.time_stamp);
-                *sent += 1;
-                if tx.send(frame).await.is_err() {
-                    return false;
+            };
+            let (hop_len, sample_rate_hz) = (self.hop_len, self.sample_rate_hz);
+            let timing = *self.timing.get_or_insert_with(|| {
+                OdasTiming::anchored(hop_len, sample_rate_hz, sst.time_stamp, Stamp::now())
+            });
+            match sst.to_frame(&timing) {
+                Ok(frame) => {
+                    if !hold_until_due(name, &frame).await {
+                        continue;
+                    }
+                    self.last_hop = Some(frame.time_stamp);
+                    self.sent += 1;
+                    if self.tx.send(frame).await.is_err() {
+                        return false;
+                    }
                 }
+                Err(message) => warn_limited!(
+                    WARNINGS,
+                    "odas_invalid",
+                    "{name}: timeStamp {}: {message}; skipped",
+                    sst.time_stamp
+                ),
             }
-            Err(message) => warn_limited!(
-                WARNINGS,
-                "odas_invalid",
-                "{name}: timeStamp {}: {message}; skipped",
-                sst.time_stamp
-            ),
         }
+        true
     }
-    true
 }
 
 /// Listens for ODAS's tracked-sources socket sink and forwards converted frames to
@@ -443,12 +470,10 @@ pub async fn serve_tcp(
                 continue;
             }
         };
-        let name = format!("ODAS {peer}");
+        let mut live = LiveStream::new(format!("ODAS {peer}"), hop_len, sample_rate_hz, &tx);
+        let name = live.name.clone();
         tracing::info!("{name}: connected");
         let mut parser = SstParser::new();
-        let mut timing = None;
-        let mut sent = 0u64;
-        let previous = last_hop.take();
         loop {
             let n = match stream.read(&mut chunk).await {
                 Ok(0) => break,
@@ -459,33 +484,31 @@ pub async fn serve_tcp(
                 }
             };
             let parsed = parser.feed(&chunk[..n]);
-            if timing.is_none()
+            if live.timing.is_none()
                 && let (LiveStart::Fixed(start), Some(first)) =
                     (start, parsed.iter().find_map(|r| r.as_ref().ok()))
             {
                 // A restarted ODAS counts from 1 again: its counter no longer matches `start`.
-                if previous.is_some_and(|p| first.time_stamp <= p) {
+                if last_hop.is_some_and(|p| first.time_stamp <= p) {
                     tracing::warn!(
                         "{name}: timeStamp went back from {} to {} (ODAS restarted): doa.start_ns no \
                          longer holds, this connection is timed from its first object",
-                        previous.unwrap_or(0),
+                        last_hop.unwrap_or(0),
                         first.time_stamp
                     );
                 } else {
-                    timing = Some(OdasTiming { hop_len, sample_rate_hz, start });
+                    live.start_at(start);
                 }
             }
-            let rates = (hop_len, sample_rate_hz);
-            if !forward_live(&name, parsed, &mut timing, rates, &mut sent, &mut last_hop, &tx).await {
+            if !live.forward(parsed).await {
                 return Ok(());
             }
         }
-        if last_hop.is_none() {
-            last_hop = previous;
-        }
+        last_hop = live.last_hop.or(last_hop);
         tracing::warn!(
-            "{name}: ODAS disconnected after {sent} objects (last timeStamp {}); listening on {local} for it \
+            "{name}: ODAS disconnected after {} objects (last timeStamp {}); listening on {local} for it \
              to reconnect",
+            live.sent,
             last_hop.map_or("none".into(), |t| t.to_string())
         );
         waiting_since = std::time::Instant::now();
@@ -525,26 +548,23 @@ pub async fn follow_file(
             Err(e) => return Err(io(e)),
         }
     };
-    let rates = (hop_len, sample_rate_hz);
-    let fixed = |s| match s {
-        LiveStart::Fixed(start) => Some(OdasTiming { hop_len, sample_rate_hz, start }),
-        LiveStart::AtFirstFrame => None,
-    };
+    let mut live = LiveStream::new(name.clone(), hop_len, sample_rate_hz, &tx);
     let mut parser = SstParser::new();
-    let mut timing = fixed(start);
-    let (mut pos, mut sent, mut last_hop) = (0u64, 0u64, None);
-    if start == LiveStart::AtFirstFrame {
-        // Skip what is there; its newest object was written just now.
-        let mut existing = Vec::new();
-        file.read_to_end(&mut existing).await.map_err(io)?;
-        pos = existing.len() as u64;
-        let newest = parser.feed(&existing).into_iter().filter_map(Result::ok).next_back();
-        if let Some(f) = &newest {
-            timing = Some(OdasTiming::anchored(hop_len, sample_rate_hz, f.time_stamp, Stamp::now()));
-            tracing::info!(
-                "{name}: following from timeStamp {} (the objects before it are skipped)",
-                f.time_stamp
-            );
+    let mut pos = 0u64;
+    match start {
+        LiveStart::Fixed(start) => live.start_at(start),
+        LiveStart::AtFirstFrame => {
+            // Skip what is there; its newest object was written just now.
+            let mut existing = Vec::new();
+            file.read_to_end(&mut existing).await.map_err(io)?;
+            pos = existing.len() as u64;
+            if let Some(f) = parser.feed(&existing).into_iter().filter_map(Result::ok).next_back() {
+                live.anchor_now(f.time_stamp);
+                tracing::info!(
+                    "{name}: following from timeStamp {} (the objects before it are skipped)",
+                    f.time_stamp
+                );
+            }
         }
     }
     tracing::info!("{name}: following the file as ODAS writes it");
@@ -557,7 +577,7 @@ pub async fn follow_file(
                  its start"
             );
             file.seek(std::io::SeekFrom::Start(0)).await.map_err(io)?;
-            (pos, parser, timing) = (0, SstParser::new(), None);
+            (pos, parser, live.timing) = (0, SstParser::new(), None);
         }
         let n = file.read(&mut chunk).await.map_err(io)?;
         if n == 0 {
@@ -566,7 +586,7 @@ pub async fn follow_file(
         }
         pos += n as u64;
         let parsed = parser.feed(&chunk[..n]);
-        if !forward_live(&name, parsed, &mut timing, rates, &mut sent, &mut last_hop, &tx).await {
+        if !live.forward(parsed).await {
             break;
         }
     }
