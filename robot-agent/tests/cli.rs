@@ -347,11 +347,7 @@ path = "goals.jsonl"
 heartbeat_interval_ms = 100
 "#
     );
-    std::fs::write(dir.join("agent.toml"), config).unwrap();
-    let cfg = dir.join("agent.toml");
-    let out = tokio::task::spawn_blocking(move || agent(&["run", "--config", cfg.to_str().unwrap()], None));
-    let out = tokio::time::timeout(Duration::from_secs(60), out).await.expect("agent run timed out").unwrap();
-    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    run_agent(&dir, &config).await;
     server.abort();
 
     let seen = coordinator.0.lock().unwrap();
@@ -381,6 +377,23 @@ heartbeat_interval_ms = 100
     let goals = lines(&std::fs::read_to_string(dir.join("goals.jsonl")).unwrap());
     assert_eq!(goals[0]["type"], "goal");
     assert_eq!((goals[0]["command_id"].as_u64(), goals[0]["x"].as_f64()), (Some(9), Some(2.0)));
+}
+
+/// Runs `soundmap-agent run` on `config`, written as `dir/agent.toml`, and checks that it succeeds.
+async fn run_agent(dir: &Path, config: &str) -> Output {
+    let cfg = dir.join("agent.toml");
+    std::fs::write(&cfg, config).unwrap();
+    let out = tokio::task::spawn_blocking(move || agent(&["run", "--config", cfg.to_str().unwrap()], None));
+    let out = tokio::time::timeout(Duration::from_secs(60), out).await.expect("agent run timed out").unwrap();
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    out
+}
+
+/// `dir/rec.wav` (4 channels, 1.024 s) and `dir/traj.tum`: a robot standing still for 5 s.
+fn write_still_recording(dir: &Path) {
+    write_wav(&dir.join("rec.wav"), 4);
+    let tum: String = (0..=100).map(|k| format!("{:.2} 0 0 0 0 0 0 1\n", k as f64 * 0.05)).collect();
+    std::fs::write(dir.join("traj.tum"), tum).unwrap();
 }
 
 /// Starts the fake coordinator on a free loopback port.
@@ -488,12 +501,10 @@ fn run_config_errors_name_the_file_and_field() {
 #[tokio::test(flavor = "multi_thread")]
 async fn run_writes_its_tracks_as_odas_sst_to_a_file_and_a_listening_tool() {
     let dir = temp_dir("run-odas-out");
-    write_wav(&dir.join("rec.wav"), 4);
-    // A still robot; no start_ns: sample 0 is the agent's start. The file is
-    // read in real time, as a live robot's audio comes (with `asap` the tool
-    // would miss the objects it cannot take at once, by design).
-    let tum: String = (0..=100).map(|k| format!("{:.2} 0 0 0 0 0 0 1\n", k as f64 * 0.05)).collect();
-    std::fs::write(dir.join("traj.tum"), tum).unwrap();
+    // No start_ns: sample 0 is the agent's start. The file is read in real
+    // time, as a live robot's audio comes (with `asap` the tool would miss the
+    // objects it cannot take at once, by design).
+    write_still_recording(&dir);
     let coordinator = Coordinator::default();
     let (addr, server) = serve(coordinator.clone()).await;
     // The ODAS tool: listens, and reads until the agent closes the connection.
@@ -527,11 +538,7 @@ connect = "{tool_addr}"
 file = "out.json"
 "#
     );
-    std::fs::write(dir.join("agent.toml"), config).unwrap();
-    let cfg = dir.join("agent.toml");
-    let out = tokio::task::spawn_blocking(move || agent(&["run", "--config", cfg.to_str().unwrap()], None));
-    let out = tokio::time::timeout(Duration::from_secs(60), out).await.expect("agent run timed out").unwrap();
-    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    run_agent(&dir, &config).await;
     server.abort();
     let from_socket = tokio::time::timeout(Duration::from_secs(10), received).await.unwrap().unwrap();
     let from_file = std::fs::read(dir.join("out.json")).unwrap();
@@ -574,9 +581,7 @@ file = "out.json"
 #[tokio::test(flavor = "multi_thread")]
 async fn run_places_an_asap_recording_before_its_start() {
     let dir = temp_dir("run-asap");
-    write_wav(&dir.join("rec.wav"), 4);
-    let tum: String = (0..=100).map(|k| format!("{:.2} 0 0 0 0 0 0 1\n", k as f64 * 0.05)).collect();
-    std::fs::write(dir.join("traj.tum"), tum).unwrap();
+    write_still_recording(&dir);
     let coordinator = Coordinator::default();
     let (addr, server) = serve(coordinator.clone()).await;
     let config = format!(
@@ -584,12 +589,8 @@ async fn run_places_an_asap_recording_before_its_start() {
          [audio]\nsource = \"wav\"\npath = \"rec.wav\"\npace = \"asap\"\n\
          [pose]\nsource = \"tum\"\npath = \"traj.tum\"\nstart_s = 0.0\n[navigator]\npath = \"goals.jsonl\"\n"
     );
-    std::fs::write(dir.join("agent.toml"), config).unwrap();
-    let cfg = dir.join("agent.toml");
     let before = soundmap_proto::Stamp::now().as_ns();
-    let out = tokio::task::spawn_blocking(move || agent(&["run", "--config", cfg.to_str().unwrap()], None));
-    let out = tokio::time::timeout(Duration::from_secs(60), out).await.expect("agent run timed out").unwrap();
-    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let out = run_agent(&dir, &config).await;
     server.abort();
     let after = soundmap_proto::Stamp::now().as_ns();
     let obs = coordinator.0.lock().unwrap().observations.clone();

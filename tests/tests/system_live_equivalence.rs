@@ -2,7 +2,7 @@
 //!
 //! A simulated trial is recorded (WAV + TUM per robot). The same recording is
 //! then fed (1) through the live agent: the code `soundmap-agent run` runs
-//! ([`LivePlan`], here in-process, one per robot, each with its own agent
+//! (`soundmap_agent::live::LivePlan`, here in-process, one per robot, each with its own agent
 //! config: WAV + TUM, real gRPC on loopback) against a real coordinator on the
 //! wall clock, and (2) through `soundmap-sim replay`. Both coordinators log
 //! every observation they accept (`output.observations_jsonl`); the two logs
@@ -12,10 +12,8 @@
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
-use soundmap_agent::config::AgentConfig;
-use soundmap_agent::live::LivePlan;
-use soundmap_sim::live_check::{LoggingCoordinator, observations_by_robot};
-use soundmap_sim::replay::{ReplayArgs, parse_robot, replay};
+use soundmap_sim::live_check::{LoggingCoordinator, observations_by_robot, replay_logging, run_agents};
+use soundmap_sim::replay::parse_robot;
 use soundmap_sim::runner::{RunOptions, SIM_EPOCH, run};
 use soundmap_sim::scenario::Scenario;
 
@@ -76,37 +74,22 @@ fn live_agent_and_replay_send_the_same_observations() {
     run(&scenario, &RunOptions { record_dir: Some(rec.clone()), ..RunOptions::default() }).unwrap();
 
     // (2) soundmap-sim replay, with the coordinator logging what it accepts.
-    let replay_log = dir.join("replay-observations.jsonl");
-    let coordinator_toml = dir.join("coordinator.toml");
-    std::fs::write(
-        &coordinator_toml,
-        format!("[output]\nobservations_jsonl = \"{}\"\n", replay_log.display()),
-    )
-    .unwrap();
-    let robots: Vec<_> = scenario
-        .robots
-        .iter()
-        .map(|r| {
-            parse_robot(&format!(
-                "id={id},audio={d}/{id}.wav,poses={d}/{id}.tum,array={a}",
-                id = r.id,
-                d = rec.display(),
-                a = r.array
-            ))
-            .unwrap()
-        })
-        .collect();
-    let args = ReplayArgs {
-        robots,
-        truths: vec![],
-        out: dir.join("replay"),
-        coordinator_config: Some(coordinator_toml),
-        pipeline: None,
-        max_pose_gap_s: 0.5,
-        view: soundmap_sim::viewer::ViewArgs::default(),
-        rosbag: None,
-    };
-    replay(&args).unwrap();
+    let replay_log = replay_logging(
+        scenario
+            .robots
+            .iter()
+            .map(|r| {
+                parse_robot(&format!(
+                    "id={id},audio={d}/{id}.wav,poses={d}/{id}.tum,array={a}",
+                    id = r.id,
+                    d = rec.display(),
+                    a = r.array
+                ))
+                .unwrap()
+            })
+            .collect(),
+        &dir,
+    );
 
     // (1) the live agents against a real coordinator on a wall clock (one that
     // reads a minute after the recording's epoch at the start and runs in real
@@ -116,22 +99,16 @@ fn live_agent_and_replay_send_the_same_observations() {
         WallClockFrom { epoch: SIM_EPOCH.plus_ns(60_000_000_000), started: std::time::Instant::now() };
     let coordinator = LoggingCoordinator::start(dir.join("live-observations.jsonl"), Arc::new(clock));
     let endpoint = coordinator.endpoint();
-    let agents: Vec<_> = scenario
+    let configs = scenario
         .robots
         .iter()
         .map(|r| {
             let path = dir.join(format!("{}.toml", r.id));
             std::fs::write(&path, agent_toml(&r.id, &endpoint, &rec, &r.array)).unwrap();
-            std::thread::spawn(move || {
-                let config = AgentConfig::load(&path).unwrap_or_else(|e| panic!("{e}"));
-                LivePlan::prepare(config).unwrap().run().unwrap()
-            })
+            path
         })
         .collect();
-    for a in agents {
-        let stats = a.join().unwrap();
-        assert_eq!((stats.pending, stats.dropped, stats.stream_errors), (0, 0, 0), "{stats:?}");
-    }
+    run_agents(configs);
     let live_log = coordinator.log.clone();
     coordinator.shutdown();
 

@@ -1,5 +1,5 @@
 //! The live agent's ODAS bridge, as a user of ODAS runs it: each robot's
-//! `soundmap-agent run` ([`LivePlan`], in-process, one per robot, real gRPC on
+//! `soundmap-agent run` (`soundmap_agent::live::LivePlan`, in-process, one per robot, real gRPC on
 //! loopback) reads the SST file ODAS wrote, with `pace = "asap"` and no
 //! `start_ns`, and poses from a TUM file, against a real coordinator on the
 //! system clock. The same files go through `soundmap-sim replay`. The two
@@ -15,12 +15,10 @@ use std::path::PathBuf;
 use std::sync::Arc;
 use std::time::Instant;
 
-use soundmap_agent::config::AgentConfig;
-use soundmap_agent::live::LivePlan;
 use soundmap_server::clock::SystemClock;
-use soundmap_sim::live_check::{LoggingCoordinator, observations_by_robot};
+use soundmap_sim::live_check::{LoggingCoordinator, observations_by_robot, replay_logging, run_agents};
 use soundmap_sim::odas_like::trial::{OdasTrialSpec, write_trial};
-use soundmap_sim::replay::{ReplayArgs, parse_robot, replay};
+use soundmap_sim::replay::parse_robot;
 
 fn scratch(name: &str) -> PathBuf {
     let dir = std::env::temp_dir().join(format!("soundmap-{name}-{}", std::process::id()));
@@ -35,24 +33,8 @@ fn live_agents_send_odas_files_asap_as_the_replay_does() {
     let trial = write_trial(&dir, &OdasTrialSpec { seed: 3, ..OdasTrialSpec::default() }).unwrap();
 
     // (1) soundmap-sim replay of the SST files.
-    let replay_log = dir.join("replay-observations.jsonl");
-    let coordinator_toml = dir.join("coordinator.toml");
-    std::fs::write(
-        &coordinator_toml,
-        format!("[output]\nobservations_jsonl = \"{}\"\n", replay_log.display()),
-    )
-    .unwrap();
-    let args = ReplayArgs {
-        robots: trial.robots.iter().map(|r| parse_robot(&r.to_argument()).unwrap()).collect(),
-        truths: vec![],
-        out: dir.join("replay"),
-        coordinator_config: Some(coordinator_toml),
-        pipeline: None,
-        max_pose_gap_s: 0.5,
-        view: Default::default(),
-        rosbag: None,
-    };
-    replay(&args).unwrap();
+    let replay_log =
+        replay_logging(trial.robots.iter().map(|r| parse_robot(&r.to_argument()).unwrap()).collect(), &dir);
 
     // (2) the live agents, asap, against a coordinator on the system clock.
     // 7,500 observations per robot in well under a second (the coordinator's
@@ -60,7 +42,7 @@ fn live_agents_send_odas_files_asap_as_the_replay_does() {
     let coordinator = LoggingCoordinator::start(dir.join("live-observations.jsonl"), Arc::new(SystemClock));
     let endpoint = coordinator.endpoint();
     let t0 = Instant::now();
-    let agents: Vec<_> = trial
+    let configs = trial
         .robots
         .iter()
         .map(|r| {
@@ -78,16 +60,10 @@ fn live_agents_send_odas_files_asap_as_the_replay_does() {
                 dir = dir.display(),
             );
             std::fs::write(&path, toml).unwrap();
-            std::thread::spawn(move || {
-                let config = AgentConfig::load(&path).unwrap_or_else(|e| panic!("{e}"));
-                LivePlan::prepare(config).unwrap().run().unwrap()
-            })
+            path
         })
         .collect();
-    for a in agents {
-        let stats = a.join().unwrap();
-        assert_eq!((stats.pending, stats.dropped, stats.stream_errors), (0, 0, 0), "{stats:?}");
-    }
+    run_agents(configs);
     let live_s = t0.elapsed().as_secs_f64();
     let live_log = coordinator.log.clone();
     coordinator.shutdown();
