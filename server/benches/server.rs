@@ -60,6 +60,7 @@ fn rays_around(source: Point3<f64>, n: usize, k: usize) -> Vec<Ray> {
                 direction_in_map: Unit::new_normalize(source - o + wobble),
                 sigma_rad: 0.05,
                 origin_sigma_m: 0.01,
+                fold: None,
             }
         })
         .collect()
@@ -125,7 +126,13 @@ fn tracker_doas(seconds: f64) -> Vec<(Stamp, u32, Ray)> {
             out.push((
                 t0.plus_secs(t),
                 i as u32,
-                Ray { origin_in_map: *o, direction_in_map: direction, sigma_rad: sigma, origin_sigma_m: 0.0 },
+                Ray {
+                    origin_in_map: *o,
+                    direction_in_map: direction,
+                    sigma_rad: sigma,
+                    origin_sigma_m: 0.0,
+                    fold: None,
+                },
             ));
         }
     }

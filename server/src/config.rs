@@ -130,6 +130,17 @@ pub struct DoaConfig {
     pub default_sigma_deg: f64,
     /// DoAs with lower activity are ignored.
     pub min_activity: f64,
+    /// Pressure reflection coefficient of the floor, in [0, 1): how strongly a
+    /// planar array hears the floor image that pulls its elevations up
+    /// ([`crate::floor_image`]). 0 keeps only the folding of elevations onto the
+    /// upper hemisphere.
+    pub floor_reflection: f64,
+    /// Height of the robots' base frame above the floor (m); 0 for a
+    /// `base_footprint`-style frame on the floor.
+    pub base_height_m: f64,
+    /// Band of the robots' SRP (Hz) used to compute a planar array's beam
+    /// pattern: the agent's default 100–8000 Hz.
+    pub srp_band_hz: [f64; 2],
 }
 
 /// Acceptance limits of incoming messages.
@@ -348,7 +359,13 @@ impl Default for AlignmentConfig {
 
 impl Default for DoaConfig {
     fn default() -> Self {
-        DoaConfig { default_sigma_deg: 3.0, min_activity: 0.0 }
+        DoaConfig {
+            default_sigma_deg: 3.0,
+            min_activity: 0.0,
+            floor_reflection: 0.6,
+            base_height_m: 0.0,
+            srp_band_hz: [100.0, 8000.0],
+        }
     }
 }
 
@@ -398,6 +415,16 @@ impl CoordinatorConfig {
         }
         if !(0.0..=1.0).contains(&self.doa.min_activity) {
             return err("doa.min_activity", format!("{} not in [0, 1]", self.doa.min_activity));
+        }
+        if !(0.0..1.0).contains(&self.doa.floor_reflection) {
+            return err("doa.floor_reflection", format!("{} not in [0, 1)", self.doa.floor_reflection));
+        }
+        if !(self.doa.base_height_m.is_finite() && self.doa.base_height_m.abs() <= 10.0) {
+            return err("doa.base_height_m", format!("{} not in [-10, 10] m", self.doa.base_height_m));
+        }
+        let [lo, hi] = self.doa.srp_band_hz;
+        if !(positive(lo) && hi.is_finite() && hi > lo && hi <= 200_000.0) {
+            return err("doa.srp_band_hz", format!("[{lo}, {hi}] is not a band 0 < low < high <= 200000"));
         }
         if !positive(self.limits.unit_vector_tolerance) || self.limits.unit_vector_tolerance >= 0.5 {
             return err(

@@ -23,6 +23,7 @@ pub mod clock;
 pub mod config;
 pub mod coordinator;
 pub mod error;
+pub mod floor_image;
 pub mod loadgen;
 pub mod planner;
 pub mod ray;

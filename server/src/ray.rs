@@ -2,6 +2,8 @@
 
 use nalgebra::{Isometry3, Matrix3, Matrix6, Point3, Unit, Vector3};
 
+use crate::floor_image::FloorFold;
+
 /// Shortest range used when a weight needs a range (m). Closer than this,
 /// the far-field DoA model does not hold anyway (theory §1.3).
 pub const MIN_RANGE_M: f64 = 0.3;
@@ -22,6 +24,10 @@ pub struct Ray {
     pub sigma_rad: f64,
     /// 1-σ lateral uncertainty of the origin (m), from the pose's position covariance.
     pub origin_sigma_m: f64,
+    /// What a planar array on a ground robot measures instead of the direct
+    /// direction (folded elevation, pulled toward the floor image), when known:
+    /// the tracker's measurement model then uses it (see [`crate::floor_image`]).
+    pub fold: Option<FloorFold>,
 }
 
 impl Ray {
@@ -59,6 +65,7 @@ impl Ray {
             direction_in_map,
             sigma_rad: var_ang.max(0.0).sqrt(),
             origin_sigma_m: var_pos.max(0.0).sqrt(),
+            fold: None,
         }
     }
 

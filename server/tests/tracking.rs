@@ -47,6 +47,7 @@ fn doa(origin: Point3<f64>, source: &Point3<f64>, sigma: f64, rng: &mut ChaCha8R
         direction_in_map: perturb(&d, sigma, rng),
         sigma_rad: sigma,
         origin_sigma_m: 0.0,
+        fold: None,
     }
 }
 

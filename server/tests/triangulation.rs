@@ -19,6 +19,7 @@ fn exact_ray(origin: Point3<f64>, source: &Point3<f64>, sigma: f64) -> Ray {
         direction_in_map: Unit::new_normalize(source - origin),
         sigma_rad: sigma,
         origin_sigma_m: 0.0,
+        fold: None,
     }
 }
 
@@ -141,7 +142,7 @@ proptest! {
     ) {
         let rays: Vec<Ray> = origins.iter().zip(&dirs).filter_map(|(o, d)| {
             let d = Vector3::from(if collapse { dirs[0] } else { *d });
-            (d.norm() > 1e-3).then(|| Ray { origin_in_map: point(*o), direction_in_map: Unit::new_normalize(d), sigma_rad: 0.0, origin_sigma_m: 0.0 })
+            (d.norm() > 1e-3).then(|| Ray { origin_in_map: point(*o), direction_in_map: Unit::new_normalize(d), sigma_rad: 0.0, origin_sigma_m: 0.0, fold: None })
         }).collect();
         if let Triangulation::Solved(s) = triangulate(&rays, &TriangulationConfig::default()) {
             prop_assert!(s.source_in_map.iter().all(|v| v.is_finite()));

@@ -43,6 +43,7 @@ pub use tracking::TrackingCounters;
 
 use crate::config::CoordinatorConfig;
 use crate::error::ServerError;
+use crate::floor_image::{FloorFold, lobe_table};
 use crate::ray::Ray;
 use crate::triangulation::triangulate;
 use positioning::Positioning;
@@ -266,6 +267,8 @@ impl Coordinator {
         let min_activity = self.config.doa.min_activity;
         let several = self.sound_map.is_some();
         let default_sigma = self.config.doa.default_sigma_deg.to_radians();
+        let (reflection, base_height_m, band) =
+            (self.config.doa.floor_reflection, self.config.doa.base_height_m, self.config.doa.srp_band_hz);
         let history_ns = self.config.alignment.history_ms as i64 * 1_000_000;
         let max_history = self.config.server.max_history_per_robot;
         let entry = match self.entry_mut(conn, "observation") {
@@ -295,19 +298,32 @@ impl Coordinator {
             return Err(e.into());
         }
         let base_from_array = entry.hello.array.base_from_array;
+        let lobe = *entry
+            .lobe
+            .get_or_insert_with(|| lobe_table(&entry.hello.array.microphone_positions, (band[0], band[1])));
+        let fold = lobe.map(|lobe| FloorFold {
+            array_height_m: (obs.map_from_base * base_from_array).translation.z
+                - obs.map_from_base.translation.z
+                + base_height_m,
+            reflection,
+            lobe,
+        });
         let rays = obs
             .doas
             .iter()
             .filter(|d| d.activity >= min_activity)
             .map(|d| {
                 let sigma = d.angular_sigma_rad.unwrap_or(default_sigma);
-                let ray = Ray::from_doa(
-                    &obs.map_from_base,
-                    &base_from_array,
-                    &d.direction_in_array,
-                    sigma,
-                    obs.pose_covariance.as_ref(),
-                );
+                let ray = Ray {
+                    fold,
+                    ..Ray::from_doa(
+                        &obs.map_from_base,
+                        &base_from_array,
+                        &d.direction_in_array,
+                        sigma,
+                        obs.pose_covariance.as_ref(),
+                    )
+                };
                 TaggedRay {
                     ray,
                     activity: d.activity,

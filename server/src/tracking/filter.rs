@@ -168,7 +168,10 @@ pub fn doa_innovation(state: &CvState, ray: &Ray, model: &DoaNoiseModel) -> Resu
     if !(range_m >= model.min_range_m) || range_m == 0.0 {
         return Err(Unusable::TooClose { range_m });
     }
-    let v_hat = nalgebra::Unit::new_unchecked(v / range_m);
+    let position = state.position();
+    let folded = |p: &Point3<f64>| ray.fold.and_then(|f| f.measured_direction(&ray.origin_in_map, p));
+    let fold_at_estimate = folded(&position);
+    let v_hat = fold_at_estimate.unwrap_or(nalgebra::Unit::new_unchecked(v / range_m));
     let (b1, b2) = tangent_basis(&v_hat);
     let basis = Matrix3x2::from_columns(&[b1, b2]);
     let d = ray.direction_in_map.into_inner() / ray.direction_in_map.norm();
@@ -183,7 +186,22 @@ pub fn doa_innovation(state: &CvState, ray: &Ray, model: &DoaNoiseModel) -> Resu
     let ray = Ray { sigma_rad: ray.sigma_rad.max(model.min_sigma_rad), ..*ray };
     let noise_variance_rad2 = ray.angular_variance(range_m) * model.variance_inflation;
     let mut jacobian = Matrix2x6::zeros();
-    jacobian.fixed_view_mut::<2, 3>(0, 0).copy_from(&(basis.transpose() / range_m));
+    if fold_at_estimate.is_some() {
+        // The folded model has no simple closed form: central differences of
+        // B̂ᵀh(p) with the basis held fixed, 10 µm steps.
+        const STEP_M: f64 = 1e-5;
+        for k in 0..3 {
+            let mut dp = Vector3::zeros();
+            dp[k] = STEP_M;
+            let (Some(plus), Some(minus)) = (folded(&(position + dp)), folded(&(position - dp))) else {
+                return Err(Unusable::NonFinite);
+            };
+            let column = basis.transpose() * (plus.into_inner() - minus.into_inner()) / (2.0 * STEP_M);
+            jacobian.fixed_view_mut::<2, 1>(0, k).copy_from(&column);
+        }
+    } else {
+        jacobian.fixed_view_mut::<2, 3>(0, 0).copy_from(&(basis.transpose() / range_m));
+    }
     let covariance = symmetric2(
         &(jacobian * state.covariance * jacobian.transpose() + Matrix2::identity() * noise_variance_rad2),
     );
@@ -241,6 +259,7 @@ mod tests {
             direction_in_map: Unit::new_normalize(target - origin),
             sigma_rad: 0.05,
             origin_sigma_m: 0.0,
+            fold: None,
         }
     }
 

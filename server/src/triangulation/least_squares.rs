@@ -61,6 +61,7 @@ mod tests {
                     direction_in_map: Unit::new_normalize(s - origin),
                     sigma_rad: 0.05,
                     origin_sigma_m: 0.01,
+                    fold: None,
                 }
             })
             .collect();

@@ -172,6 +172,7 @@ mod tests {
                     direction_in_map: Unit::new_normalize(s - origin),
                     sigma_rad: 0.05,
                     origin_sigma_m: 0.0,
+                    fold: None,
                 }
             })
             .collect()

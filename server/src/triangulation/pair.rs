@@ -98,6 +98,7 @@ mod tests {
             direction_in_map: Unit::new_normalize(Point3::from(toward) - origin),
             sigma_rad: sigma,
             origin_sigma_m: 0.0,
+            fold: None,
         }
     }
 
@@ -122,12 +123,14 @@ mod tests {
             direction_in_map: Vector3::x_axis(),
             sigma_rad: 0.01,
             origin_sigma_m: 0.0,
+            fold: None,
         };
         let r1 = Ray {
             origin_in_map: Point3::new(2.0, -2.0, 1.0),
             direction_in_map: Vector3::y_axis(),
             sigma_rad: 0.01,
             origin_sigma_m: 0.0,
+            fold: None,
         };
         let cp = closest_points(&r0, &r1).unwrap();
         assert!(

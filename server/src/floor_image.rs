@@ -1,0 +1,360 @@
+//! What a ground robot's planar array measures: the direct path folded onto
+//! the upper hemisphere and pulled toward the floor image.
+//!
+//! # Physics
+//!
+//! A planar (horizontal) array measures only the horizontal part of the
+//! wavevector: for a plane wave at azimuth φ and elevation e its steered
+//! response depends on u = cos e · (cos φ, sin φ). Elevations +e and −e give the
+//! same u, so the array cannot tell up from down and its search keeps the upper
+//! hemisphere. On a ground robot the floor reflection arrives at the same
+//! azimuth from below the horizon, at elevation −eᵢ with
+//!
+//! ```text
+//! tan e_d = (h_s − h_a)/ρ      (direct path; h_s, h_a heights above the floor, ρ horizontal range)
+//! tan e_i = (h_s + h_a)/ρ      (floor image, heard mirrored at +e_i)
+//! ```
+//!
+//! In the radial coordinate c = cos e the two arrivals sit at c_d = cos e_d and
+//! c_i = cos e_i, Δc = c_d − c_i apart. The steered response power is about
+//! B(c − c_d) + r² B(c − c_i): B is the array's azimuth-averaged radial beam
+//! pattern, and r = R·R_d/R_i the image's amplitude relative to the direct path
+//! (R the floor's pressure reflection coefficient, R_d/R_i spherical spreading).
+//! The two add in power, not in amplitude: the image arrives
+//! (R_i − R_d)/c ≈ 2h_s h_a/(R c) later, ≥ 0.5 ms at indoor ranges, so their cross
+//! terms change sign every ≤ 2 kHz and average out over a broadband SRP.
+//! Where Δc is larger than the main lobe, the peak stays on the direct path; as
+//! the range grows Δc shrinks as ≈ 2h_s h_a/ρ², the lobes merge, and the peak moves
+//! a fraction β(Δc, r²) of the way toward the image, up to r²/(1 + r²).
+//!
+//! The measurement model is then: measured direction = azimuth of the source,
+//! elevation acos(c_d − β·Δc), never below the horizon. With R = 0 it is the
+//! folded direct path, which is also right for a source below the array.
+//!
+//! B is computed from the array's own microphone positions (the hello's
+//! `microphone_positions_m`) for SRP-PHAT over a flat band (each frequency
+//! weighted equally, as phase transform weighting does): for a pair with
+//! horizontal baseline b and azimuth â, the band mean of cos(2πf·δ·(b·â)/c) has
+//! the closed form [sin(2πf₂x) − sin(2πf₁x)]/(2π(f₂ − f₁)x), x = δ·(b·â)/c.
+//! β is tabulated once per array shape over (Δc, r²) by maximizing the sum above.
+//!
+//! Worked numbers (16SoundsUSB pioneer array, 100–8000 Hz, array 0.51 m above
+//! the floor, talker at 1.2 m, R = 0.8): at ρ = 2 m, e_d = 19.0° and e_i = 40.6°,
+//! Δc = 0.19 and the lobes are apart (β ≈ 0.01, +0.02 m in height at the
+//! source); at 4 m, Δc = 0.066, β ≈ 0.29, the peak is at 14.9° instead of 9.8°
+//! (+0.37 m); at 6 m, Δc = 0.032, β ≈ 0.36, 10.9° instead of 6.5° (+0.47 m).
+//! A simulated image-source room (RT60 0.5 s) shows +0.09, +0.25 and +0.42 m
+//! at 3, 4 and 6 m for a model that ignores this.
+//!
+//! Assumptions, stated: the array is level (its plane parallel to the floor), the
+//! floor is the plane `doa.base_height_m` below the robot's base frame, and the
+//! floor reflects every frequency with the same R. An array is treated as
+//! planar when its microphones' vertical extent is at most 10 % of their
+//! horizontal extent.
+
+use std::collections::HashMap;
+use std::sync::{Mutex, OnceLock};
+
+use nalgebra::{Point3, Unit, Vector3};
+
+/// Speed of sound used for the beam pattern (m/s).
+const SPEED_OF_SOUND: f64 = 343.0;
+/// Azimuths the beam pattern is averaged over, in [0, π).
+const AZIMUTHS: usize = 12;
+/// Radial offsets of the beam pattern table: 0 to `PATTERN_MAX` in `PATTERN_STEP`.
+const PATTERN_STEP: f64 = 0.001;
+const PATTERN_MAX: f64 = 0.6;
+/// Δc axis of the β table.
+const DC_STEP: f64 = 0.0025;
+const DC_MAX: f64 = 0.5;
+/// r² axis of the β table.
+const R2_STEPS: usize = 20;
+/// Largest vertical extent of the microphones, relative to their horizontal extent,
+/// for which an array counts as planar.
+const PLANAR_RATIO: f64 = 0.1;
+/// Distinct array shapes kept (a hostile client cannot grow the registry past this).
+const MAX_SHAPES: usize = 32;
+
+/// β(Δc, r²) for one array shape and band (see the module docs).
+pub struct LobeTable {
+    /// β at Δc = i·DC_STEP (rows) and r² = j/R2_STEPS (columns), row-major.
+    beta: Vec<f64>,
+    /// Half-power half-width of the radial beam pattern (in c).
+    half_width: f64,
+}
+
+impl std::fmt::Debug for LobeTable {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("LobeTable").field("half_width", &self.half_width).finish_non_exhaustive()
+    }
+}
+
+impl PartialEq for LobeTable {
+    fn eq(&self, other: &Self) -> bool {
+        std::ptr::eq(self, other)
+    }
+}
+
+impl LobeTable {
+    /// The table of the array with microphones at `positions` (array frame, m)
+    /// for an SRP over `band_hz`; `None` when the array is not planar or has no
+    /// horizontal extent.
+    pub fn for_array(positions: &[Point3<f64>], band_hz: (f64, f64)) -> Option<LobeTable> {
+        if positions.len() < 2 || !(band_hz.0 > 0.0 && band_hz.1 > band_hz.0 && band_hz.1.is_finite()) {
+            return None;
+        }
+        let span = |f: fn(&Point3<f64>) -> f64| {
+            let (lo, hi) =
+                positions.iter().map(f).fold((f64::MAX, f64::MIN), |(l, h), v| (l.min(v), h.max(v)));
+            hi - lo
+        };
+        let horizontal = span(|p| p.x).max(span(|p| p.y));
+        if !(horizontal > 0.0 && horizontal.is_finite()) || span(|p| p.z) > PLANAR_RATIO * horizontal {
+            return None;
+        }
+        let pattern = radial_pattern(positions, band_hz);
+        let at = |delta: f64| interpolate(&pattern, delta.abs() / PATTERN_STEP);
+        let half_width = (0..pattern.len())
+            .find(|&i| pattern[i] < 0.5 * pattern[0])
+            .map_or(PATTERN_MAX, |i| i as f64 * PATTERN_STEP);
+        let rows = (DC_MAX / DC_STEP).round() as usize + 1;
+        let mut beta = Vec::with_capacity(rows * (R2_STEPS + 1));
+        for i in 0..rows {
+            let dc = i as f64 * DC_STEP;
+            for j in 0..=R2_STEPS {
+                beta.push(peak_fraction(&at, dc, j as f64 / R2_STEPS as f64));
+            }
+        }
+        Some(LobeTable { beta, half_width })
+    }
+
+    /// Half-power half-width of the array's radial beam pattern, in c = cos e.
+    pub fn half_width(&self) -> f64 {
+        self.half_width
+    }
+
+    /// β(Δc, r²): the fraction of the way from the direct path toward the image
+    /// where the merged peak lies (0 when they are apart).
+    pub fn beta(&self, dc: f64, r2: f64) -> f64 {
+        if !(dc > 0.0) || !(r2 > 0.0) {
+            return 0.0;
+        }
+        let x = dc / DC_STEP;
+        let rows = self.beta.len() / (R2_STEPS + 1);
+        if x >= (rows - 1) as f64 {
+            return 0.0;
+        }
+        let y = r2.min(1.0) * R2_STEPS as f64;
+        let (i, j) = (x.floor() as usize, (y.floor() as usize).min(R2_STEPS - 1));
+        let (fx, fy) = (x - i as f64, y - j as f64);
+        let v = |i: usize, j: usize| self.beta[i * (R2_STEPS + 1) + j];
+        (1.0 - fx) * ((1.0 - fy) * v(i, j) + fy * v(i, j + 1))
+            + fx * ((1.0 - fy) * v(i + 1, j) + fy * v(i + 1, j + 1))
+    }
+}
+
+/// The azimuth-averaged radial SRP-PHAT beam pattern B(δ), δ = 0, PATTERN_STEP, …,
+/// normalized so that B(0) = 1.
+fn radial_pattern(positions: &[Point3<f64>], (f1, f2): (f64, f64)) -> Vec<f64> {
+    let n = (PATTERN_MAX / PATTERN_STEP).round() as usize + 1;
+    let mut out = vec![0.0; n];
+    let mut count = 0usize;
+    let azimuths: Vec<(f64, f64)> = (0..AZIMUTHS)
+        .map(|k| {
+            let a = std::f64::consts::PI * k as f64 / AZIMUTHS as f64;
+            (a.cos(), a.sin())
+        })
+        .collect();
+    for (i, a) in positions.iter().enumerate() {
+        for b in &positions[i + 1..] {
+            let (bx, by) = (a.x - b.x, a.y - b.y);
+            for (ca, sa) in &azimuths {
+                // Delay per unit δ (s): the pair's projection on the azimuth over c.
+                let tau = (bx * ca + by * sa) / SPEED_OF_SOUND;
+                count += 1;
+                for (k, o) in out.iter_mut().enumerate() {
+                    let x = k as f64 * PATTERN_STEP * tau;
+                    *o += if x.abs() < 1e-12 {
+                        1.0
+                    } else {
+                        let w = 2.0 * std::f64::consts::PI * x;
+                        ((w * f2).sin() - (w * f1).sin()) / (w * (f2 - f1))
+                    };
+                }
+            }
+        }
+    }
+    let scale = 1.0 / count.max(1) as f64;
+    out.iter_mut().for_each(|v| *v *= scale);
+    out
+}
+
+/// Linear interpolation of `table` at fractional index `x` (0 beyond the end).
+fn interpolate(table: &[f64], x: f64) -> f64 {
+    let i = x.floor() as usize;
+    if i + 1 >= table.len() {
+        return 0.0;
+    }
+    let f = x - i as f64;
+    table[i] * (1.0 - f) + table[i + 1] * f
+}
+
+/// Where between the direct path (t = 0) and the image (t = 1), Δc apart, the
+/// maximum of B(tΔc) + r²B((1 − t)Δc) lies, searched over t ∈ [0, 1] on a fine
+/// grid and refined by a parabola through the best point and its neighbours.
+fn peak_fraction(at: &impl Fn(f64) -> f64, dc: f64, r2: f64) -> f64 {
+    if dc <= 0.0 || r2 <= 0.0 {
+        return 0.0;
+    }
+    const N: usize = 400;
+    let power = |t: f64| at(t * dc) + r2 * at((1.0 - t) * dc);
+    let (best, _) = (0..=N)
+        .map(|k| (k, power(k as f64 / N as f64)))
+        .fold((0, f64::MIN), |acc, (k, p)| if p > acc.1 { (k, p) } else { acc });
+    let t = best as f64 / N as f64;
+    if best == 0 || best == N {
+        return t;
+    }
+    let h = 1.0 / N as f64;
+    let (pm, p0, pp) = (power(t - h), power(t), power(t + h));
+    let denom = pm - 2.0 * p0 + pp;
+    if denom < 0.0 { (t + 0.5 * h * (pm - pp) / denom).clamp(0.0, 1.0) } else { t }
+}
+
+/// The table of an array shape, computed once per distinct shape and band and
+/// kept for the life of the process; `None` when the array is not planar, or
+/// when [`MAX_SHAPES`] distinct shapes are already held.
+pub fn lobe_table(positions: &[Point3<f64>], band_hz: (f64, f64)) -> Option<&'static LobeTable> {
+    static SHAPES: OnceLock<Mutex<HashMap<Vec<i64>, Option<&'static LobeTable>>>> = OnceLock::new();
+    // Shape key: positions to 0.1 mm and the band to 1 Hz.
+    let mut key: Vec<i64> =
+        positions.iter().flat_map(|p| [p.x, p.y, p.z]).map(|v| (v * 1e4).round() as i64).collect();
+    key.extend([band_hz.0.round() as i64, band_hz.1.round() as i64]);
+    let shapes = SHAPES.get_or_init(|| Mutex::new(HashMap::new()));
+    let mut shapes = shapes.lock().unwrap_or_else(|e| e.into_inner());
+    if let Some(t) = shapes.get(&key) {
+        return *t;
+    }
+    if shapes.len() >= MAX_SHAPES {
+        return None;
+    }
+    let table = LobeTable::for_array(positions, band_hz).map(|t| &*Box::leak(Box::new(t)));
+    shapes.insert(key, table);
+    table
+}
+
+/// The measurement model of one ray from a planar array on a ground robot.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct FloorFold {
+    /// Height of the array centre above the floor (m).
+    pub array_height_m: f64,
+    /// The floor's pressure reflection coefficient R, in [0, 1).
+    pub reflection: f64,
+    /// The array's β table.
+    pub lobe: &'static LobeTable,
+}
+
+impl FloorFold {
+    /// The direction the array at `origin` measures for a source at `source`
+    /// (map frame, z up): the source's azimuth, elevation acos(c_d − β·Δc) ≥ 0.
+    /// `None` when the source is straight above or below the array.
+    pub fn measured_direction(
+        &self,
+        origin: &Point3<f64>,
+        source: &Point3<f64>,
+    ) -> Option<Unit<Vector3<f64>>> {
+        let v = source - origin;
+        let rho = v.x.hypot(v.y);
+        if !(rho > 1e-9) {
+            return None;
+        }
+        let r_direct = v.norm();
+        let c_direct = rho / r_direct;
+        let h_a = self.array_height_m;
+        let h_s = h_a + v.z;
+        let c = if h_a > 0.0 && h_s > 0.0 && self.reflection > 0.0 {
+            let r_image = rho.hypot(h_s + h_a);
+            let c_image = rho / r_image;
+            let r = self.reflection * r_direct / r_image;
+            let dc = c_direct - c_image;
+            c_direct - self.lobe.beta(dc, r * r) * dc
+        } else {
+            c_direct
+        };
+        let c = c.clamp(0.0, 1.0);
+        let s = (1.0 - c * c).max(0.0).sqrt();
+        Some(Unit::new_unchecked(Vector3::new(c * v.x / rho, c * v.y / rho, s)))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The 16SoundsUSB pioneer array (two rectangular rings, see the agent's presets).
+    fn sixteen() -> Vec<Point3<f64>> {
+        let corners = [
+            (1.0, -1.0),
+            (1.0, 0.0),
+            (1.0, 1.0),
+            (0.0, 1.0),
+            (-1.0, 1.0),
+            (-1.0, 0.0),
+            (-1.0, -1.0),
+            (0.0, -1.0),
+        ];
+        let mut out = vec![];
+        for (dx, dy, z) in [(0.191, 0.245, -0.0075), (0.332, 0.36, 0.0075)] {
+            for (sx, sy) in corners {
+                out.push(Point3::new(sx * dx * 0.5, sy * dy * 0.5, z));
+            }
+        }
+        out
+    }
+
+    #[test]
+    fn non_planar_arrays_have_no_table() {
+        let mut tall = sixteen();
+        tall[0].z = 0.2;
+        assert!(LobeTable::for_array(&tall, (100.0, 8000.0)).is_none());
+        assert!(LobeTable::for_array(&sixteen()[..1], (100.0, 8000.0)).is_none());
+        assert!(LobeTable::for_array(&sixteen(), (100.0, f64::NAN)).is_none());
+    }
+
+    #[test]
+    fn merged_lobes_pull_the_peak_toward_the_image_and_apart_lobes_do_not() {
+        let t = LobeTable::for_array(&sixteen(), (100.0, 8000.0)).unwrap();
+        // Far apart: the peak stays on the direct path.
+        assert!(t.beta(0.3, 0.64) < 0.02, "{}", t.beta(0.3, 0.64));
+        // Nearly together: the power centroid r²/(1 + r²).
+        let b = t.beta(0.005, 0.64);
+        assert!((b - 0.64 / 1.64).abs() < 0.03, "{b}");
+        // Monotone in r² and no image, no pull.
+        assert!(t.beta(0.04, 0.3) < t.beta(0.04, 0.8));
+        assert_eq!(t.beta(0.04, 0.0), 0.0);
+        assert!(t.half_width() > 0.02 && t.half_width() < 0.2, "{}", t.half_width());
+    }
+
+    #[test]
+    fn model_matches_the_worked_numbers() {
+        let lobe = lobe_table(&sixteen(), (100.0, 8000.0)).unwrap();
+        let fold = FloorFold { array_height_m: 0.5125, reflection: 0.8, lobe };
+        let origin = Point3::new(0.0, 0.0, 0.5125);
+        let bias = |rho: f64| {
+            let src = Point3::new(rho, 0.0, 1.2);
+            let d = fold.measured_direction(&origin, &src).unwrap();
+            let e = d.z.asin();
+            rho * e.tan() - (1.2 - 0.5125)
+        };
+        assert!(bias(2.0) < 0.05, "{}", bias(2.0));
+        assert!((bias(4.0) - 0.37).abs() < 0.05, "{}", bias(4.0));
+        assert!((bias(6.0) - 0.47).abs() < 0.05, "{}", bias(6.0));
+        // No reflection: the folded direct path, also for a source below the array.
+        let dry = FloorFold { reflection: 0.0, ..fold };
+        let low = Point3::new(3.0, 4.0, 0.1);
+        let d = dry.measured_direction(&origin, &low).unwrap();
+        let v = (low - origin).normalize();
+        assert!((d.x - v.x).abs() < 1e-12 && (d.y - v.y).abs() < 1e-12 && (d.z + v.z).abs() < 1e-12);
+        assert!(dry.measured_direction(&origin, &Point3::new(0.0, 0.0, 2.0)).is_none());
+    }
+}
