@@ -40,6 +40,9 @@ pub struct ArrayInfo {
     pub preset: Option<String>,
     /// Microphone positions in the array frame, metres (may be empty).
     pub microphone_positions: Vec<Point3<f64>>,
+    /// Band of the steered-response search behind the DoAs, Hz (`[low, high]`),
+    /// when the robot declares it.
+    pub srp_band_hz: Option<[f64; 2]>,
 }
 
 /// First message of a robot's stream.
@@ -245,7 +248,30 @@ impl ArrayInfo {
                 },
             ));
         }
+        let srp_band_hz = match a.srp_band_hz.as_slice() {
+            [] => None,
+            &[lo, _] if !(lo > 0.0 && lo < 200_000.0) => {
+                return Err(ValidationError::new(
+                    format!("{field}.srp_band_hz[0]"),
+                    Problem::OutOfRange { value: lo, range: "(0, 200000) Hz" },
+                ));
+            }
+            &[lo, hi] if !(hi > lo && hi <= 200_000.0) => {
+                return Err(ValidationError::new(
+                    format!("{field}.srp_band_hz[1]"),
+                    Problem::OutOfRange { value: hi, range: "(srp_band_hz[0], 200000] Hz" },
+                ));
+            }
+            &[lo, hi] => Some([lo, hi]),
+            other => {
+                return Err(ValidationError::new(
+                    format!("{field}.srp_band_hz"),
+                    Problem::WrongLength { expected: 2, got: other.len() },
+                ));
+            }
+        };
         Ok(ArrayInfo {
+            srp_band_hz,
             base_from_array,
             microphone_count: a.microphone_count,
             preset: (!a.preset.is_empty())
@@ -266,6 +292,7 @@ impl ArrayInfo {
                 .iter()
                 .map(|p| vec3_to_wire(&p.coords))
                 .collect(),
+            srp_band_hz: self.srp_band_hz.map(Vec::from).unwrap_or_default(),
         }
     }
 }
@@ -660,6 +687,7 @@ mod tests {
                 microphone_count: 16,
                 preset: Some("16soundsusb-pioneer".into()),
                 microphone_positions: vec![],
+                srp_band_hz: None,
             },
             software_version: "test".into(),
             signature_bands: Some(vec![100.0, 1000.0, 7200.0]),
@@ -675,6 +703,22 @@ mod tests {
         let mut w = h.to_wire();
         w.protocol_version = 9;
         assert_eq!(Hello::from_wire(&w, &l).unwrap_err().field, "hello.protocol_version");
+        // The SRP band: absent, or two values 0 < low < high <= 200 kHz.
+        let banded =
+            Hello { array: ArrayInfo { srp_band_hz: Some([100.0, 8000.0]), ..h.array.clone() }, ..h.clone() };
+        assert_eq!(Hello::from_wire(&banded.to_wire(), &l).unwrap(), banded);
+        for (band, field) in [
+            (vec![100.0], "hello.array.srp_band_hz"),
+            (vec![100.0, 200.0, 300.0], "hello.array.srp_band_hz"),
+            (vec![0.0, 8000.0], "hello.array.srp_band_hz[0]"),
+            (vec![f64::NAN, 8000.0], "hello.array.srp_band_hz[0]"),
+            (vec![8000.0, 100.0], "hello.array.srp_band_hz[1]"),
+            (vec![100.0, f64::INFINITY], "hello.array.srp_band_hz[1]"),
+        ] {
+            let mut w = h.to_wire();
+            w.array.as_mut().unwrap().srp_band_hz = band.clone();
+            assert_eq!(Hello::from_wire(&w, &l).unwrap_err().field, field, "{band:?}");
+        }
     }
 
     fn hello_with_bands() -> Hello {
@@ -685,6 +729,7 @@ mod tests {
                 microphone_count: 4,
                 preset: None,
                 microphone_positions: vec![],
+                srp_band_hz: None,
             },
             software_version: String::new(),
             signature_bands: Some(vec![100.0, 1000.0, 3000.0, 7200.0]),

@@ -226,6 +226,7 @@ mod tests {
             microphone_count: 4,
             preset: None,
             microphone_positions: vec![],
+            srp_band_hz: None,
         };
         let command = RepositionCommand {
             command_id: 7,

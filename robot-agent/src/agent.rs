@@ -239,6 +239,7 @@ pub fn hello(robot_id: RobotId, array: &ArrayGeometry, software_version: String)
             microphone_count: array.channels() as u32,
             preset: presets::NAMES.contains(&array.name.as_str()).then(|| array.name.clone()),
             microphone_positions: array.positions().collect(),
+            srp_band_hz: None,
         },
         software_version,
         signature_bands: None,

@@ -88,9 +88,10 @@ impl PipelineConfig {
     }
 
     /// `hello` declaring what this pipeline sends: at most
-    /// [`PipelineConfig::max_reported_tracks`] tracks per observation and
+    /// [`PipelineConfig::max_reported_tracks`] tracks per observation,
     /// signatures in the bands of [`SignatureConfig::band_edges_hz`] (none when
-    /// signatures are off). Errors name a bad signature setting.
+    /// signatures are off), and the SRP's band (`ArrayInfo::srp_band_hz`, which
+    /// lets the coordinator model the floor image for a planar array). Errors name a bad signature setting.
     pub fn declare_tracks(
         &self,
         mut hello: soundmap_proto::Hello,
@@ -98,6 +99,8 @@ impl PipelineConfig {
         let edges = self.signature.band_edges_hz(self.sample_rate_hz)?;
         hello.max_tracks = Some(self.max_reported_tracks as u32);
         hello.signature_bands = (!edges.is_empty()).then_some(edges);
+        let nyquist = 0.5 * self.sample_rate_hz as f64;
+        hello.array.srp_band_hz = Some([self.srp.min_frequency_hz, self.srp.max_frequency_hz.min(nyquist)]);
         Ok(hello)
     }
 }

@@ -189,6 +189,7 @@ fn hello(id: &str) -> Hello {
             microphone_count: 4,
             preset: None,
             microphone_positions: vec![],
+            srp_band_hz: None,
         },
         software_version: "test".into(),
         signature_bands: None,

@@ -287,6 +287,7 @@ fn hello(i: usize) -> wire::RobotMessage {
             microphone_count: 16,
             preset: None,
             microphone_positions: vec![],
+            srp_band_hz: None,
         },
         software_version: "bench".into(),
         signature_bands: None,
@@ -495,6 +496,7 @@ fn bench_sources(quick: bool) {
         microphone_count: 16,
         preset: None,
         microphone_positions: vec![],
+        srp_band_hz: None,
     };
     let sources = [
         Point3::new(1.0, 0.5, 1.2),

@@ -138,9 +138,6 @@ pub struct DoaConfig {
     /// Height of the robots' base frame above the floor (m); 0 for a
     /// `base_footprint`-style frame on the floor.
     pub base_height_m: f64,
-    /// Band of the robots' SRP (Hz) used to compute a planar array's beam
-    /// pattern: the agent's default 100–8000 Hz.
-    pub srp_band_hz: [f64; 2],
 }
 
 /// Acceptance limits of incoming messages.
@@ -359,13 +356,7 @@ impl Default for AlignmentConfig {
 
 impl Default for DoaConfig {
     fn default() -> Self {
-        DoaConfig {
-            default_sigma_deg: 3.0,
-            min_activity: 0.0,
-            floor_reflection: 0.6,
-            base_height_m: 0.0,
-            srp_band_hz: [100.0, 8000.0],
-        }
+        DoaConfig { default_sigma_deg: 3.0, min_activity: 0.0, floor_reflection: 0.6, base_height_m: 0.0 }
     }
 }
 
@@ -421,10 +412,6 @@ impl CoordinatorConfig {
         }
         if !(self.doa.base_height_m.is_finite() && self.doa.base_height_m.abs() <= 10.0) {
             return err("doa.base_height_m", format!("{} not in [-10, 10] m", self.doa.base_height_m));
-        }
-        let [lo, hi] = self.doa.srp_band_hz;
-        if !(positive(lo) && hi.is_finite() && hi > lo && hi <= 200_000.0) {
-            return err("doa.srp_band_hz", format!("[{lo}, {hi}] is not a band 0 < low < high <= 200000"));
         }
         if !positive(self.limits.unit_vector_tolerance) || self.limits.unit_vector_tolerance >= 0.5 {
             return err(
@@ -652,6 +639,8 @@ mod tests {
     fn tracking_planner_and_positioning_errors_name_file_and_key() {
         for (text, prefix) in [
             ("[tracking]\nlag = 0.3\n", "c.toml: tracking.lag: unknown field `lag`"),
+            ("[doa]\nfloor_reflection = 1.0\n", "c.toml: doa.floor_reflection: 1 not in [0, 1)"),
+            ("[doa]\nbase_height_m = nan\n", "c.toml: doa.base_height_m: "),
             ("[tracking]\nlag_s = -1.0\n", "c.toml: tracking.lag_s: "),
             ("[tracking]\nconfirm_updates = 40\n", "c.toml: tracking.confirm_updates: "),
             ("[tracking]\nenabled = \"yes\"\n", "c.toml: tracking.enabled: "),

@@ -31,8 +31,14 @@
 //! elevation acos(c_d − β·Δc), never below the horizon. With R = 0 it is the
 //! folded direct path, which is also right for a source below the array.
 //!
-//! B is computed from the array's own microphone positions (the hello's
-//! `microphone_positions_m`) for SRP-PHAT over a flat band (each frequency
+//! The model applies to a robot whose hello declares both its microphone
+//! positions and the band of its SRP (`microphone_positions_m`,
+//! `srp_band_hz`): soundmap-agent does for its own localization. DoAs from
+//! another process (an ODAS bridge) are taken as straight directions, since
+//! how that process folds and weights is not known here.
+//!
+//! B is computed from the array's own microphone positions for SRP-PHAT over
+//! the declared band (each frequency
 //! weighted equally, as phase transform weighting does): for a pair with
 //! horizontal baseline b and azimuth â, the band mean of cos(2πf·δ·(b·â)/c) has
 //! the closed form [sin(2πf₂x) − sin(2πf₁x)]/(2π(f₂ − f₁)x), x = δ·(b·â)/c.
@@ -43,8 +49,26 @@
 //! Δc = 0.19 and the lobes are apart (β ≈ 0.01, +0.02 m in height at the
 //! source); at 4 m, Δc = 0.066, β ≈ 0.29, the peak is at 14.9° instead of 9.8°
 //! (+0.37 m); at 6 m, Δc = 0.032, β ≈ 0.36, 10.9° instead of 6.5° (+0.47 m).
-//! A simulated image-source room (RT60 0.5 s) shows +0.09, +0.25 and +0.42 m
-//! at 3, 4 and 6 m for a model that ignores this.
+//! A simulated image-source room (RT60 0.5 s, 14 × 12 × 3 m) shows +0.09, +0.25,
+//! +0.41 and +0.42 m at 3, 4, 5 and 6 m for a model that ignores this.
+//!
+//! # What the model is and is not
+//!
+//! It is a model of the *mechanism* the measurements show (elevations pulled up
+//! by a growing fraction of the direct-to-image gap as the range grows), not a
+//! derivation of SRP-PHAT in a room. Taken literally for one specular floor
+//! reflection, phase-transform weighting is barely biased: with r < 1 the phase
+//! at each microphone follows the direct path on average over frequency. The
+//! pull seen in reverberant simulations comes from the whole vertical family of
+//! early reflections (floor, ceiling and their repeats, all at the source's
+//! azimuth and, folded, above the direct path) against a diffuse field, and the
+//! power-sum model stands in for it. With the room's own R (≈ 0.8 for the room
+//! above) it over-corrects at 3–4 m by 0.15 m, because its lobes merge earlier
+//! than the simulated ones. The default `doa.floor_reflection = 0.6` was chosen
+//! to under-correct at every range rather than over-correct anywhere: residual
+//! height errors 0.00, +0.04, +0.15, +0.15 m at 3, 4, 5, 6 m in that room (R = 0.7:
+//! −0.05, −0.05, +0.07, +0.07 m). Set it to 0 for an array that does not hear
+//! the floor (high mount, absorbing floor).
 //!
 //! Assumptions, stated: the array is level (its plane parallel to the floor), the
 //! floor is the plane `doa.base_height_m` below the robot's base frame, and the
@@ -74,6 +98,10 @@ const R2_STEPS: usize = 20;
 const PLANAR_RATIO: f64 = 0.1;
 /// Distinct array shapes kept (a hostile client cannot grow the registry past this).
 const MAX_SHAPES: usize = 32;
+/// Most microphones an array may have for a table: the beam pattern costs
+/// pairs × azimuths × offsets (32 microphones: 496 pairs, ≈ 3.6 M terms, tens of ms
+/// once per shape).
+const MAX_MICROPHONES: usize = 32;
 
 /// β(Δc, r²) for one array shape and band (see the module docs).
 pub struct LobeTable {
@@ -97,10 +125,14 @@ impl PartialEq for LobeTable {
 
 impl LobeTable {
     /// The table of the array with microphones at `positions` (array frame, m)
-    /// for an SRP over `band_hz`; `None` when the array is not planar or has no
-    /// horizontal extent.
+    /// for an SRP over `band_hz`; `None` when the array is not planar, has no
+    /// horizontal extent, or has more than 32 microphones.
     pub fn for_array(positions: &[Point3<f64>], band_hz: (f64, f64)) -> Option<LobeTable> {
-        if positions.len() < 2 || !(band_hz.0 > 0.0 && band_hz.1 > band_hz.0 && band_hz.1.is_finite()) {
+        let usable = (2..=MAX_MICROPHONES).contains(&positions.len())
+            && band_hz.0 > 0.0
+            && band_hz.1 > band_hz.0
+            && band_hz.1.is_finite();
+        if !usable {
             return None;
         }
         let span = |f: fn(&Point3<f64>) -> f64| {

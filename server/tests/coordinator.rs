@@ -28,6 +28,7 @@ fn array() -> ArrayInfo {
         microphone_count: 16,
         preset: None,
         microphone_positions: vec![],
+        srp_band_hz: None,
     }
 }
 

@@ -267,8 +267,7 @@ impl Coordinator {
         let min_activity = self.config.doa.min_activity;
         let several = self.sound_map.is_some();
         let default_sigma = self.config.doa.default_sigma_deg.to_radians();
-        let (reflection, base_height_m, band) =
-            (self.config.doa.floor_reflection, self.config.doa.base_height_m, self.config.doa.srp_band_hz);
+        let (reflection, base_height_m) = (self.config.doa.floor_reflection, self.config.doa.base_height_m);
         let history_ns = self.config.alignment.history_ms as i64 * 1_000_000;
         let max_history = self.config.server.max_history_per_robot;
         let entry = match self.entry_mut(conn, "observation") {
@@ -298,9 +297,10 @@ impl Coordinator {
             return Err(e.into());
         }
         let base_from_array = entry.hello.array.base_from_array;
-        let lobe = *entry
-            .lobe
-            .get_or_insert_with(|| lobe_table(&entry.hello.array.microphone_positions, (band[0], band[1])));
+        let lobe = *entry.lobe.get_or_insert_with(|| {
+            let a = &entry.hello.array;
+            a.srp_band_hz.and_then(|[lo, hi]| lobe_table(&a.microphone_positions, (lo, hi)))
+        });
         let fold = lobe.map(|lobe| FloorFold {
             array_height_m: (obs.map_from_base * base_from_array).translation.z
                 - obs.map_from_base.translation.z

@@ -17,6 +17,13 @@
 //! is the theory's B̂ᵀd; unlike B̂ᵀd it is exact for a DoA rotated by a random
 //! tangent angle, and a direction pointing *away* from the track gives a residual
 //! near π, not near 0, so it is gated instead of accepted.
+//!
+//! A ray from a planar array on a ground robot ([`Ray::fold`]) is compared not
+//! with the direction v̂ toward the predicted source but with what such an array
+//! measures for it, h(p̂) ([`crate::floor_image`]: elevation folded onto the upper
+//! hemisphere and pulled toward the floor image). B̂ is then built around h(p̂),
+//! and H's position block is the central difference of B̂ᵀh(p) (10 µm steps,
+//! basis held fixed), since h has no simple closed form.
 
 use nalgebra::{
     Matrix2, Matrix2x6, Matrix3, Matrix3x2, Matrix6, Matrix6x2, Point3, Vector2, Vector3, Vector6,

@@ -38,6 +38,7 @@ pub fn array() -> ArrayInfo {
         microphone_count: 16,
         preset: Some("16soundsusb-pioneer".into()),
         microphone_positions: vec![],
+        srp_band_hz: None,
     }
 }
 
