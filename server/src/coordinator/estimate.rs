@@ -1,5 +1,6 @@
 //! What the coordinator publishes about a source: the instantaneous
-//! triangulation of the aligned rays (the paper's method) and, beside it, the
+//! triangulation of the aligned rays (the paper's method; for folded rays of
+//! planar arrays, refined on the floor-image model) and, beside it, the
 //! tracked (filtered) state; and which of the two is the "best" estimate.
 
 use nalgebra::{Matrix3, Point3};

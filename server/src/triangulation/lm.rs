@@ -80,7 +80,12 @@ fn residual(ray: &Ray, term: &Term, x: &Point3<f64>) -> Option<(Vector2<f64>, Ve
     if !(r > 0.0) || ray.direction_in_map.dot(&v) <= 0.0 {
         return None;
     }
-    let u = v / r;
+    // A folded ray (planar array on a ground robot) is compared with what that
+    // array measures for x, not with the straight direction (crate::floor_image).
+    let u = match ray.fold.and_then(|f| f.measured_direction(&ray.origin_in_map, x)) {
+        Some(d) => d.into_inner(),
+        None => v / r,
+    };
     Some((term.b * u, u, r))
 }
 
@@ -96,7 +101,8 @@ fn total_cost(rays: &[Ray], terms: &[Term], x: &Point3<f64>, loss: RobustLoss) -
     Some((robust, chi2))
 }
 
-/// Minimizes Σ ρ(eᵢᵀWᵢeᵢ) with eᵢ = Bᵢᵀ(x − oᵢ)/‖x − oᵢ‖ from `init`. The start must be in
+/// Minimizes Σ ρ(eᵢᵀWᵢeᵢ) with eᵢ = Bᵢᵀ(x − oᵢ)/‖x − oᵢ‖ (for a folded ray,
+/// Bᵢᵀh(x) with h what its array measures, [`Ray::fold`]) from `init`. The start must be in
 /// front of every array; steps that would cross behind one are refused.
 pub fn refine(rays: &[Ray], init: Point3<f64>, loss: RobustLoss, max_iterations: usize) -> LmFit {
     let terms: Vec<Term> = rays
@@ -120,6 +126,9 @@ pub fn refine(rays: &[Ray], init: Point3<f64>, loss: RobustLoss, max_iterations:
         for (ray, t) in rays.iter().zip(&terms) {
             let (e, u, r) = residual(ray, t, &x).expect("current point is in front of every array");
             let w = 1.0 / ray.angular_variance(r.max(MIN_RANGE_M));
+            // For a folded ray this is the straight-direction Jacobian at the folded
+            // direction: approximate (it ignores how the floor-image pull changes
+            // with x), so steps converge a little slower, to the same minimum.
             let jac = t.b * (Matrix3::identity() - u * u.transpose()) / r;
             let omega = loss.weight(e.norm_squared() * w) * w;
             h += jac.transpose() * jac * omega;

@@ -8,7 +8,10 @@
 //! more, as theory §1.5 recommends), attaches the covariance (inverse Fisher
 //! information at the estimate), GDOP, θ and condition number, and decides a
 //! gate. Geometries that give no point are [`Triangulation::Degenerate`]
-//! outcomes, never errors and never NaN.
+//! outcomes, never errors and never NaN. Rays from planar arrays on ground
+//! robots ([`Ray::fold`]) are fitted on what those arrays measure (LM residuals
+//! against the folded, floor-image-pulled direction); with two such rays the
+//! closed-form pair point is the start of that fit.
 
 pub mod least_squares;
 pub mod lm;
@@ -260,7 +263,14 @@ pub fn triangulate(rays: &[Ray], config: &TriangulationConfig) -> Triangulation 
             }
         };
         let (point, chi2) = pair::weighted_pair_point(&rays[0], &rays[1], &cp);
-        (Method::RayPair, point, Some(cp.miss_m), chi2)
+        if rays.iter().any(|r| r.fold.is_some()) && behind(rays, &point, config.min_range_m).is_none() {
+            // Folded rays do not point at the source: the closed form is only the
+            // start, refined on the floor-image model (crate::floor_image).
+            let fit = lm::refine(rays, point, RobustLoss::None, config.lm_max_iterations);
+            (Method::RayPair, fit.point, Some(cp.miss_m), fit.chi2)
+        } else {
+            (Method::RayPair, point, Some(cp.miss_m), chi2)
+        }
     } else {
         if !some_pair_apart(rays, config.min_ray_angle_deg) {
             return Triangulation::Degenerate(Degeneracy::NearParallel {

@@ -22,7 +22,8 @@ pub struct TimelineRow {
     pub gdop: f64,
     /// Published position (map frame, m): the coordinator's best estimate.
     pub estimate_in_map: Option<Point3<f64>>,
-    /// The instantaneous triangulation published beside it (the paper's method), when
+    /// The instantaneous triangulation published beside it (the paper's method,
+    /// refined on the floor-image model for folded rays), when
     /// the best estimate is a filtered one.
     pub triangulation_in_map: Option<Point3<f64>>,
     /// Whether the coordinator marked the estimate trusted.
