@@ -86,11 +86,13 @@ const SPEED_OF_SOUND: f64 = 343.0;
 /// Azimuths the beam pattern is averaged over, in [0, π).
 const AZIMUTHS: usize = 12;
 /// Radial offsets of the beam pattern table: 0 to `PATTERN_MAX` in `PATTERN_STEP`.
-const PATTERN_STEP: f64 = 0.001;
+const PATTERN_STEP: f64 = 0.002;
 const PATTERN_MAX: f64 = 0.6;
+/// Frequency grid of the band-integrated pattern (Hz); bands are rounded to it.
+const F_STEP: f64 = 250.0;
 /// Δc axis of the β table.
 const DC_STEP: f64 = 0.0025;
-const DC_MAX: f64 = 0.5;
+const DC_MAX: f64 = 0.3;
 /// r² axis of the β table.
 const R2_STEPS: usize = 20;
 /// Largest vertical extent of the microphones, relative to their horizontal extent,
@@ -98,15 +100,17 @@ const R2_STEPS: usize = 20;
 const PLANAR_RATIO: f64 = 0.1;
 /// Distinct array shapes kept (a hostile client cannot grow the registry past this).
 const MAX_SHAPES: usize = 32;
-/// Most microphones an array may have for a table: the beam pattern costs
-/// pairs × azimuths × offsets (32 microphones: 496 pairs, ≈ 3.6 M terms, tens of ms
-/// once per shape).
+/// Distinct bands kept per array shape (beyond: the declared band's table).
+const MAX_BANDS: usize = 64;
+/// Most microphones an array may have for a table (32: 496 pairs).
 const MAX_MICROPHONES: usize = 32;
+/// Highest declared band edge a pattern is computed to (Hz).
+const MAX_BAND_HZ: f64 = 48_000.0;
 
 /// β(Δc, r²) for one array shape and band (see the module docs).
 pub struct LobeTable {
     /// β at Δc = i·DC_STEP (rows) and r² = j/R2_STEPS (columns), row-major.
-    beta: Vec<f64>,
+    beta: Vec<f32>,
     /// Half-power half-width of the radial beam pattern (in c).
     half_width: f64,
 }
@@ -126,26 +130,16 @@ impl PartialEq for LobeTable {
 impl LobeTable {
     /// The table of the array with microphones at `positions` (array frame, m)
     /// for an SRP over `band_hz`; `None` when the array is not planar, has no
-    /// horizontal extent, or has more than 32 microphones.
+    /// horizontal extent, has more than 32 microphones, or the band is not one.
     pub fn for_array(positions: &[Point3<f64>], band_hz: (f64, f64)) -> Option<LobeTable> {
-        let usable = (2..=MAX_MICROPHONES).contains(&positions.len())
-            && band_hz.0 > 0.0
-            && band_hz.1 > band_hz.0
-            && band_hz.1.is_finite();
-        if !usable {
-            return None;
-        }
-        let span = |f: fn(&Point3<f64>) -> f64| {
-            let (lo, hi) =
-                positions.iter().map(f).fold((f64::MAX, f64::MIN), |(l, h), v| (l.min(v), h.max(v)));
-            hi - lo
-        };
-        let horizontal = span(|p| p.x).max(span(|p| p.y));
-        if !(horizontal > 0.0 && horizontal.is_finite()) || span(|p| p.z) > PLANAR_RATIO * horizontal {
-            return None;
-        }
-        let pattern = radial_pattern(positions, band_hz);
-        let at = |delta: f64| interpolate(&pattern, delta.abs() / PATTERN_STEP);
+        let pattern = ArrayPattern::for_array(positions, band_hz)?;
+        let (k1, k2) = pattern.declared;
+        Some(LobeTable::from_pattern(&pattern.band_pattern(k1, k2)))
+    }
+
+    /// β over the table's grid from a radial pattern B(i·PATTERN_STEP).
+    fn from_pattern(pattern: &[f64]) -> LobeTable {
+        let at = |delta: f64| interpolate(pattern, delta.abs() / PATTERN_STEP);
         let half_width = (0..pattern.len())
             .find(|&i| pattern[i] < 0.5 * pattern[0])
             .map_or(PATTERN_MAX, |i| i as f64 * PATTERN_STEP);
@@ -154,10 +148,10 @@ impl LobeTable {
         for i in 0..rows {
             let dc = i as f64 * DC_STEP;
             for j in 0..=R2_STEPS {
-                beta.push(peak_fraction(&at, dc, j as f64 / R2_STEPS as f64));
+                beta.push(peak_fraction(&at, dc, j as f64 / R2_STEPS as f64) as f32);
             }
         }
-        Some(LobeTable { beta, half_width })
+        LobeTable { beta, half_width }
     }
 
     /// Half-power half-width of the array's radial beam pattern, in c = cos e.
@@ -179,46 +173,131 @@ impl LobeTable {
         let y = r2.min(1.0) * R2_STEPS as f64;
         let (i, j) = (x.floor() as usize, (y.floor() as usize).min(R2_STEPS - 1));
         let (fx, fy) = (x - i as f64, y - j as f64);
-        let v = |i: usize, j: usize| self.beta[i * (R2_STEPS + 1) + j];
+        let v = |i: usize, j: usize| f64::from(self.beta[i * (R2_STEPS + 1) + j]);
         (1.0 - fx) * ((1.0 - fy) * v(i, j) + fy * v(i, j + 1))
             + fx * ((1.0 - fy) * v(i + 1, j) + fy * v(i + 1, j + 1))
     }
 }
 
-/// The azimuth-averaged radial SRP-PHAT beam pattern B(δ), δ = 0, PATTERN_STEP, …,
-/// normalized so that B(0) = 1.
-fn radial_pattern(positions: &[Point3<f64>], (f1, f2): (f64, f64)) -> Vec<f64> {
-    let n = (PATTERN_MAX / PATTERN_STEP).round() as usize + 1;
-    let mut out = vec![0.0; n];
-    let mut count = 0usize;
-    let azimuths: Vec<(f64, f64)> = (0..AZIMUTHS)
-        .map(|k| {
-            let a = std::f64::consts::PI * k as f64 / AZIMUTHS as f64;
-            (a.cos(), a.sin())
-        })
-        .collect();
-    for (i, a) in positions.iter().enumerate() {
-        for b in &positions[i + 1..] {
-            let (bx, by) = (a.x - b.x, a.y - b.y);
-            for (ca, sa) in &azimuths {
-                // Delay per unit δ (s): the pair's projection on the azimuth over c.
-                let tau = (bx * ca + by * sa) / SPEED_OF_SOUND;
-                count += 1;
-                for (k, o) in out.iter_mut().enumerate() {
-                    let x = k as f64 * PATTERN_STEP * tau;
-                    *o += if x.abs() < 1e-12 {
-                        1.0
-                    } else {
-                        let w = 2.0 * std::f64::consts::PI * x;
-                        ((w * f2).sin() - (w * f1).sin()) / (w * (f2 - f1))
-                    };
+/// A planar array's radial SRP-PHAT pattern integrated over frequency, from
+/// which the pattern of any band on the [`F_STEP`] grid follows, and the β
+/// tables of the bands asked for so far.
+pub struct ArrayPattern {
+    /// G(δᵢ, f_k) = mean over pairs and azimuths of ∫₀^f_k cos(2πf·δᵢτ) df
+    /// = sin(2πf_kδᵢτ)/(2πδᵢτ), row k, column i (Hz).
+    g: Vec<f64>,
+    n_delta: usize,
+    n_f: usize,
+    /// The declared band on the grid (indices into f_k).
+    declared: (usize, usize),
+    /// β tables by band (grid indices).
+    tables: Mutex<HashMap<(usize, usize), &'static LobeTable>>,
+}
+
+impl std::fmt::Debug for ArrayPattern {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("ArrayPattern").field("declared", &self.declared).finish_non_exhaustive()
+    }
+}
+
+impl ArrayPattern {
+    /// The pattern of the array with microphones at `positions` whose SRP
+    /// covers `band_hz`; `None` as for [`LobeTable::for_array`].
+    pub fn for_array(positions: &[Point3<f64>], band_hz: (f64, f64)) -> Option<ArrayPattern> {
+        let usable = (2..=MAX_MICROPHONES).contains(&positions.len())
+            && band_hz.0 > 0.0
+            && band_hz.1 > band_hz.0
+            && band_hz.1 <= MAX_BAND_HZ;
+        if !usable {
+            return None;
+        }
+        let span = |f: fn(&Point3<f64>) -> f64| {
+            let (lo, hi) =
+                positions.iter().map(f).fold((f64::MAX, f64::MIN), |(l, h), v| (l.min(v), h.max(v)));
+            hi - lo
+        };
+        let horizontal = span(|p| p.x).max(span(|p| p.y));
+        if !(horizontal > 0.0 && horizontal.is_finite()) || !(span(|p| p.z) <= PLANAR_RATIO * horizontal) {
+            return None;
+        }
+        let k2 = ((band_hz.1 / F_STEP).round() as usize).max(1);
+        let k1 = ((band_hz.0 / F_STEP).round() as usize).min(k2 - 1);
+        let n_f = k2 + 1;
+        let n_delta = (PATTERN_MAX / PATTERN_STEP).round() as usize + 1;
+        let mut g = vec![0.0; n_f * n_delta];
+        let mut count = 0usize;
+        let azimuths: Vec<(f64, f64)> = (0..AZIMUTHS)
+            .map(|k| {
+                let a = std::f64::consts::PI * k as f64 / AZIMUTHS as f64;
+                (a.cos(), a.sin())
+            })
+            .collect();
+        let two_pi = 2.0 * std::f64::consts::PI;
+        for (i, a) in positions.iter().enumerate() {
+            for b in &positions[i + 1..] {
+                let (bx, by) = (a.x - b.x, a.y - b.y);
+                for (ca, sa) in &azimuths {
+                    // Delay per unit δ (s): the pair's projection on the azimuth over c.
+                    let tau = (bx * ca + by * sa) / SPEED_OF_SOUND;
+                    count += 1;
+                    for d in 0..n_delta {
+                        let x = d as f64 * PATTERN_STEP * tau;
+                        if x.abs() < 1e-12 {
+                            for k in 0..n_f {
+                                g[k * n_delta + d] += k as f64 * F_STEP;
+                            }
+                            continue;
+                        }
+                        // sin(2π f_k x) for k = 0, 1, … by rotation.
+                        let (step_s, step_c) = (two_pi * F_STEP * x).sin_cos();
+                        let (mut s, mut c) = (0.0f64, 1.0f64);
+                        let scale = 1.0 / (two_pi * x);
+                        for k in 0..n_f {
+                            g[k * n_delta + d] += s * scale;
+                            (s, c) = (s * step_c + c * step_s, c * step_c - s * step_s);
+                        }
+                    }
                 }
             }
         }
+        let norm = 1.0 / count.max(1) as f64;
+        g.iter_mut().for_each(|v| *v *= norm);
+        Some(ArrayPattern { g, n_delta, n_f, declared: (k1, k2), tables: Mutex::new(HashMap::new()) })
     }
-    let scale = 1.0 / count.max(1) as f64;
-    out.iter_mut().for_each(|v| *v *= scale);
-    out
+
+    /// B(δ) of the band [f_k1, f_k2], normalized so that B(0) = 1.
+    fn band_pattern(&self, k1: usize, k2: usize) -> Vec<f64> {
+        let width = (k2 - k1) as f64 * F_STEP;
+        (0..self.n_delta)
+            .map(|d| (self.g[k2 * self.n_delta + d] - self.g[k1 * self.n_delta + d]) / width)
+            .collect()
+    }
+
+    /// The β table for a source heard over `band_hz` (None: the declared band),
+    /// clipped to the declared band and rounded to the 250 Hz grid. Bands past
+    /// the first 64 asked for get the declared band's table.
+    pub fn lobe(&self, band_hz: Option<(f64, f64)>) -> &'static LobeTable {
+        let (d1, d2) = self.declared;
+        let (k1, k2) = match band_hz {
+            Some((lo, hi)) if lo.is_finite() && hi.is_finite() => {
+                let k2 = ((hi / F_STEP).round().max(0.0) as usize).clamp(d1 + 1, d2);
+                let k1 = ((lo / F_STEP).round().max(0.0) as usize).clamp(d1, k2 - 1);
+                (k1, k2)
+            }
+            _ => (d1, d2),
+        };
+        debug_assert!(k2 < self.n_f);
+        let mut tables = self.tables.lock().unwrap_or_else(|e| e.into_inner());
+        let key =
+            if tables.contains_key(&(k1, k2)) || tables.len() < MAX_BANDS { (k1, k2) } else { (d1, d2) };
+        if let Some(t) = tables.get(&key) {
+            return t;
+        }
+        let table: &'static LobeTable =
+            Box::leak(Box::new(LobeTable::from_pattern(&self.band_pattern(key.0, key.1))));
+        tables.insert(key, table);
+        table
+    }
 }
 
 /// Linear interpolation of `table` at fractional index `x` (0 beyond the end).
@@ -232,13 +311,13 @@ fn interpolate(table: &[f64], x: f64) -> f64 {
 }
 
 /// Where between the direct path (t = 0) and the image (t = 1), Δc apart, the
-/// maximum of B(tΔc) + r²B((1 − t)Δc) lies, searched over t ∈ [0, 1] on a fine
+/// maximum of B(tΔc) + r²B((1 − t)Δc) lies, searched over t ∈ [0, 1] on a
 /// grid and refined by a parabola through the best point and its neighbours.
 fn peak_fraction(at: &impl Fn(f64) -> f64, dc: f64, r2: f64) -> f64 {
     if dc <= 0.0 || r2 <= 0.0 {
         return 0.0;
     }
-    const N: usize = 400;
+    const N: usize = 200;
     let power = |t: f64| at(t * dc) + r2 * at((1.0 - t) * dc);
     let (best, _) = (0..=N)
         .map(|k| (k, power(k as f64 / N as f64)))
@@ -253,11 +332,12 @@ fn peak_fraction(at: &impl Fn(f64) -> f64, dc: f64, r2: f64) -> f64 {
     if denom < 0.0 { (t + 0.5 * h * (pm - pp) / denom).clamp(0.0, 1.0) } else { t }
 }
 
-/// The table of an array shape, computed once per distinct shape and band and
-/// kept for the life of the process; `None` when the array is not planar, or
-/// when [`MAX_SHAPES`] distinct shapes are already held.
-pub fn lobe_table(positions: &[Point3<f64>], band_hz: (f64, f64)) -> Option<&'static LobeTable> {
-    static SHAPES: OnceLock<Mutex<HashMap<Vec<i64>, Option<&'static LobeTable>>>> = OnceLock::new();
+/// The pattern of an array shape and declared band, computed once per distinct
+/// shape and kept for the life of the process; `None` when the array is not
+/// planar (or not usable), or when [`MAX_SHAPES`] distinct shapes are held.
+pub fn array_pattern(positions: &[Point3<f64>], band_hz: (f64, f64)) -> Option<&'static ArrayPattern> {
+    type Shapes = Mutex<HashMap<Vec<i64>, Option<&'static ArrayPattern>>>;
+    static SHAPES: OnceLock<Shapes> = OnceLock::new();
     // Shape key: positions to 0.1 mm and the band to 1 Hz.
     let mut key: Vec<i64> =
         positions.iter().flat_map(|p| [p.x, p.y, p.z]).map(|v| (v * 1e4).round() as i64).collect();
@@ -270,9 +350,28 @@ pub fn lobe_table(positions: &[Point3<f64>], band_hz: (f64, f64)) -> Option<&'st
     if shapes.len() >= MAX_SHAPES {
         return None;
     }
-    let table = LobeTable::for_array(positions, band_hz).map(|t| &*Box::leak(Box::new(t)));
-    shapes.insert(key, table);
-    table
+    let pattern = ArrayPattern::for_array(positions, band_hz).map(|t| &*Box::leak(Box::new(t)));
+    shapes.insert(key, pattern);
+    pattern
+}
+
+/// The band a track is heard over, from its spectral signature: the hull of
+/// the bands within `range_db` of its strongest band. `edges_hz` are the
+/// hello's B + 1 band edges, `levels_db` the track's B band levels. `None`
+/// when the two do not match or no level is finite.
+pub fn heard_band(edges_hz: &[f64], levels_db: &[f32], range_db: f64) -> Option<(f64, f64)> {
+    if edges_hz.len() != levels_db.len() + 1 || levels_db.is_empty() {
+        return None;
+    }
+    let top = levels_db.iter().copied().filter(|v| v.is_finite()).fold(f32::MIN, f32::max);
+    if top == f32::MIN {
+        return None;
+    }
+    let floor = f64::from(top) - range_db;
+    let loud = |v: &f32| v.is_finite() && f64::from(*v) >= floor;
+    let first = levels_db.iter().position(loud)?;
+    let last = levels_db.iter().rposition(loud)?;
+    Some((edges_hz[first], edges_hz[last + 1]))
 }
 
 /// The measurement model of one ray from a planar array on a ground robot.
@@ -368,8 +467,38 @@ mod tests {
     }
 
     #[test]
+    fn a_narrower_band_merges_sooner_and_bands_are_cached() {
+        let pattern = array_pattern(&sixteen(), (100.0, 8000.0)).unwrap();
+        let broad = pattern.lobe(None);
+        let talker = pattern.lobe(Some((300.0, 3400.0)));
+        // Wider lobes at low frequencies: at a gap where the broadband lobes are
+        // still apart, the band-limited ones have merged.
+        assert!(
+            talker.beta(0.1, 0.4) > broad.beta(0.1, 0.4) + 0.1,
+            "{} {}",
+            talker.beta(0.1, 0.4),
+            broad.beta(0.1, 0.4)
+        );
+        assert!(talker.half_width() > broad.half_width());
+        // The same band (after rounding to the grid) is the same table; a band
+        // outside the declared one is clipped to it.
+        assert!(std::ptr::eq(talker, pattern.lobe(Some((310.0, 3390.0)))));
+        assert!(std::ptr::eq(broad, pattern.lobe(Some((10.0, 20_000.0)))));
+        assert!(std::ptr::eq(broad, pattern.lobe(Some((f64::NAN, 3000.0)))));
+    }
+
+    #[test]
+    fn heard_band_is_the_hull_of_the_loud_bands() {
+        let edges = [100.0, 200.0, 400.0, 800.0, 1600.0, 3200.0, 6400.0];
+        assert_eq!(heard_band(&edges, &[-60.0, -20.0, -5.0, 0.0, -12.0, -45.0], 20.0), Some((200.0, 3200.0)));
+        assert_eq!(heard_band(&edges, &[0.0; 6], 20.0), Some((100.0, 6400.0)));
+        assert_eq!(heard_band(&edges, &[0.0; 5], 20.0), None);
+        assert_eq!(heard_band(&edges, &[f32::NAN; 6], 20.0), None);
+    }
+
+    #[test]
     fn model_matches_the_worked_numbers() {
-        let lobe = lobe_table(&sixteen(), (100.0, 8000.0)).unwrap();
+        let lobe = array_pattern(&sixteen(), (100.0, 8000.0)).unwrap().lobe(None);
         let fold = FloorFold { array_height_m: 0.5125, reflection: 0.8, lobe };
         let origin = Point3::new(0.0, 0.0, 0.5125);
         let bias = |rho: f64| {

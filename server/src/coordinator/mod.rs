@@ -43,12 +43,16 @@ pub use tracking::TrackingCounters;
 
 use crate::config::CoordinatorConfig;
 use crate::error::ServerError;
-use crate::floor_image::{FloorFold, lobe_table};
+use crate::floor_image::{FloorFold, array_pattern, heard_band};
 use crate::ray::Ray;
 use crate::triangulation::triangulate;
 use positioning::Positioning;
 use sound_map::{AlignedRays, SoundMap};
 use tracking::Tracking;
+
+/// A track is taken as heard over the bands of its signature within this many
+/// dB of its strongest band (PHAT weighs every bin the source dominates alike).
+const HEARD_BAND_RANGE_DB: f64 = 20.0;
 
 /// The coordinator's answer to a valid hello.
 #[derive(Clone, Debug, PartialEq, Eq)]
@@ -297,23 +301,26 @@ impl Coordinator {
             return Err(e.into());
         }
         let base_from_array = entry.hello.array.base_from_array;
-        let lobe = *entry.lobe.get_or_insert_with(|| {
+        let pattern = *entry.pattern.get_or_insert_with(|| {
             let a = &entry.hello.array;
-            a.srp_band_hz.and_then(|[lo, hi]| lobe_table(&a.microphone_positions, (lo, hi)))
+            a.srp_band_hz.and_then(|[lo, hi]| array_pattern(&a.microphone_positions, (lo, hi)))
         });
-        let fold = lobe.map(|lobe| FloorFold {
-            array_height_m: (obs.map_from_base * base_from_array).translation.z
-                - obs.map_from_base.translation.z
-                + base_height_m,
-            reflection,
-            lobe,
-        });
+        let array_height_m = (obs.map_from_base * base_from_array).translation.z
+            - obs.map_from_base.translation.z
+            + base_height_m;
+        let edges = entry.hello.signature_bands.as_deref();
         let rays = obs
             .doas
             .iter()
             .filter(|d| d.activity >= min_activity)
             .map(|d| {
                 let sigma = d.angular_sigma_rad.unwrap_or(default_sigma);
+                // The band the track is heard over (its signature) sets how wide
+                // the array's lobes are, and so how soon they merge.
+                let band = edges
+                    .zip(d.signature.as_deref())
+                    .and_then(|(e, levels)| heard_band(e, levels, HEARD_BAND_RANGE_DB));
+                let fold = pattern.map(|p| FloorFold { array_height_m, reflection, lobe: p.lobe(band) });
                 let ray = Ray {
                     fold,
                     ..Ray::from_doa(

@@ -17,7 +17,7 @@ pub use soundmap_proto::monitoring::{Liveness, RobotStatus};
 use soundmap_proto::{Hello, Stamp};
 
 use super::commands::{CommandLog, ConnId};
-use crate::floor_image::LobeTable;
+use crate::floor_image::ArrayPattern;
 use crate::ray::Ray;
 
 /// One DoA of an observation as a ray in the map, with what else the robot
@@ -79,9 +79,9 @@ pub struct RobotEntry {
     pub rejected: u64,
     /// Reposition commands sent to it and its reports on them.
     pub commands: CommandLog,
-    /// Its array's floor-image table, once looked up (`Some(None)`: the array
-    /// is not planar or declared no microphone positions).
-    pub lobe: Option<Option<&'static LobeTable>>,
+    /// Its array's floor-image pattern, once looked up (`Some(None)`: the array
+    /// is not planar, or its hello declares no microphone positions or SRP band).
+    pub pattern: Option<Option<&'static ArrayPattern>>,
 }
 
 impl RobotEntry {
@@ -100,7 +100,7 @@ impl RobotEntry {
             accepted: 0,
             rejected: 0,
             commands: CommandLog::default(),
-            lobe: None,
+            pattern: None,
         }
     }
 
