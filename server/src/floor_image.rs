@@ -217,7 +217,8 @@ impl ArrayPattern {
             hi - lo
         };
         let horizontal = span(|p| p.x).max(span(|p| p.y));
-        if !(horizontal > 0.0 && horizontal.is_finite()) || !(span(|p| p.z) <= PLANAR_RATIO * horizontal) {
+        let planar = horizontal > 0.0 && horizontal.is_finite() && span(|p| p.z) <= PLANAR_RATIO * horizontal;
+        if !planar {
             return None;
         }
         let k2 = ((band_hz.1 / F_STEP).round() as usize).max(1);
