@@ -26,6 +26,7 @@ use soundmap_proto::wire::robot_link_client::RobotLinkClient;
 use soundmap_proto::wire::robot_message::Msg as Up;
 use soundmap_proto::{ArrayInfo, Hello, Observation, RobotId, Stamp, TrackedDoa, wire};
 use soundmap_server::clock::SystemClock;
+use soundmap_server::floor_image::{FloorFold, array_pattern};
 use soundmap_server::planner::{
     Heard, PlanOutcome, Planner, PlannerConfig, PlannerInput, RobotState, SourceEstimate, StartPlan,
     StartRobot,
@@ -89,6 +90,14 @@ fn bench_triangulation(quick: bool) {
     let lm8 = time_per_call(5, n8, |i| {
         black_box(triangulate(black_box(&sets8[i % 256]), &cfg));
     });
+    let sets_folded: Vec<Vec<Ray>> = sets.iter().map(|r| folded(r)).collect();
+    let sets8_folded: Vec<Vec<Ray>> = sets8.iter().map(|r| folded(r)).collect();
+    let pair_folded = time_per_call(5, n, |i| {
+        black_box(triangulate(black_box(&sets_folded[i % 256]), &cfg));
+    });
+    let lm8_folded = time_per_call(5, n8, |i| {
+        black_box(triangulate(black_box(&sets8_folded[i % 256]), &cfg));
+    });
     let lm128 = time_per_call(3, n / 200, |i| {
         black_box(triangulate(black_box(&sets128[i % 64]), &cfg));
     });
@@ -97,6 +106,10 @@ fn bench_triangulation(quick: bool) {
     println!("|---|---|");
     println!("| paper's ray-to-ray point only (reference) | {paper:.0} |");
     println!("| pair triangulation with covariance, GDOP, θ, κ, gate | {pair:.0} |");
+    println!(
+        "| the same, folded rays (floor-image model: pair point + LM on the model) | {pair_folded:.0} |"
+    );
+    println!("| 8 rays, folded (floor-image model) | {lm8_folded:.0} |");
     println!(
         "| 8 rays: IRLS least squares + Levenberg–Marquardt (Cauchy) with covariance and gate | {lm8:.0} |"
     );
@@ -139,6 +152,34 @@ fn tracker_doas(seconds: f64) -> Vec<(Stamp, u32, Ray)> {
     out
 }
 
+/// The same rays as seen by 16SoundsUSB arrays 0.5 m above the floor (the
+/// floor-image measurement model on, broadband source).
+fn folded(rays: &[Ray]) -> Vec<Ray> {
+    let corners = [
+        (1.0, -1.0),
+        (1.0, 0.0),
+        (1.0, 1.0),
+        (0.0, 1.0),
+        (-1.0, 1.0),
+        (-1.0, 0.0),
+        (-1.0, -1.0),
+        (0.0, -1.0),
+    ];
+    let mics: Vec<Point3<f64>> = [(0.191, 0.245, -0.0075), (0.332, 0.36, 0.0075)]
+        .iter()
+        .flat_map(|&(dx, dy, z)| {
+            corners.iter().map(move |&(sx, sy)| Point3::new(sx * dx * 0.5, sy * dy * 0.5, z))
+        })
+        .collect();
+    let lobe = array_pattern(&mics, (100.0, 8000.0)).expect("planar array").lobe(None);
+    rays.iter()
+        .map(|r| Ray {
+            fold: Some(FloorFold { array_height_m: r.origin_in_map.z.max(0.5), reflection: 0.6, lobe }),
+            ..*r
+        })
+        .collect()
+}
+
 fn bench_tracker(quick: bool) {
     let doas = tracker_doas(if quick { 20.0 } else { 120.0 });
     let mut start = SourceTracker::new(TrackerConfig::default());
@@ -157,7 +198,15 @@ fn bench_tracker(quick: bool) {
     println!("| DoA arrival | ns per update (mean) | applied |");
     println!("|---|---|---|");
     let mut per_update = Vec::new();
-    for (name, order) in [("in stamp order", &doas), ("1 in 16 arriving 0.25 s late", &late)] {
+    let folded_doas: Vec<_> = {
+        let rays = folded(&doas.iter().map(|d| d.2).collect::<Vec<_>>());
+        doas.iter().zip(rays).map(|(d, r)| (d.0, d.1, r)).collect()
+    };
+    for (name, order) in [
+        ("in stamp order", &doas),
+        ("1 in 16 arriving 0.25 s late", &late),
+        ("in stamp order, folded rays (floor-image model)", &folded_doas),
+    ] {
         let mut applied = 0;
         let per = time_per_call(if quick { 5 } else { 20 }, 1, |_| {
             let mut t = start.clone();
@@ -170,6 +219,7 @@ fn bench_tracker(quick: bool) {
         println!("| {name} | {per:.0} | {applied} of {} |", order.len());
     }
     // A DoA 0.25 s late precedes ~15 buffered DoAs (60/s), which are re-run after it.
+    println!("folded / straight rays: {:.2}×", per_update[2] / per_update[0]);
     let extra = (per_update[1] - per_update[0]) * 16.0;
     println!(
         "extra cost of one late DoA (insertion and re-running the ~15 after it): {:.1} µs\n",
