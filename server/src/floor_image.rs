@@ -29,7 +29,11 @@
 //!
 //! The measurement model is then: measured direction = azimuth of the source,
 //! elevation acos(c_d − β·Δc), never below the horizon. With R = 0 it is the
-//! folded direct path, which is also right for a source below the array.
+//! folded direct path, which is also right for a source below the array. The
+//! fold cannot be undone from the DoAs alone: arrays at one height hear a
+//! source below their plane exactly as its mirror image above it (up to the
+//! weak floor term), and the fits start from the raw rays' intersection, so a
+//! source below the arrays is placed at its mirror above them.
 //!
 //! The model applies to a robot whose hello declares both its microphone
 //! positions and the band of its SRP (`microphone_positions_m`,

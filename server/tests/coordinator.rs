@@ -286,3 +286,53 @@ fn a_band_without_90_degrees_is_refused_naming_the_field() {
     let s = c.positioning();
     assert_eq!((s.enabled, s.theta_min_deg, s.theta_max_deg), (true, 40.0, 140.0), "unchanged");
 }
+
+/// The wiring of the floor-image model: robots whose hello declares a planar
+/// array's microphone positions and SRP band get their DoAs compared with what
+/// such an array measures (`server::floor_image`: elevation pulled toward the
+/// mirrored floor image); robots that declare no band get them taken as
+/// straight directions. DoAs here are made by the model itself, 5 m away, where
+/// the pull is large.
+#[test]
+fn declared_planar_arrays_get_the_floor_image_model_and_others_do_not() {
+    use soundmap_server::floor_image::{FloorFold, array_pattern};
+    let source = Point3::new(0.0, 0.0, 1.2);
+    let square: Vec<Point3<f64>> = (0..8)
+        .map(|k| {
+            let a = k as f64 * std::f64::consts::FRAC_PI_4;
+            Point3::new(0.15 * a.cos(), 0.15 * a.sin(), 0.0)
+        })
+        .collect();
+    let band = [100.0, 8000.0];
+    let lobe = array_pattern(&square, (band[0], band[1])).expect("planar").lobe(None);
+    let mut estimates = Vec::new();
+    for declared in [true, false] {
+        let config = CoordinatorConfig::default();
+        let fold = FloorFold { array_height_m: 0.48, reflection: config.doa.floor_reflection, lobe };
+        let mut c = Coordinator::new(config).unwrap();
+        let planar = ArrayInfo {
+            microphone_count: 8,
+            microphone_positions: square.clone(),
+            srp_band_hz: declared.then_some(band),
+            ..array()
+        };
+        let mut conns = Vec::new();
+        for id in ["a", "b"] {
+            conns.push(c.connect(T0, Hello { array: planar.clone(), ..hello(id) }, None).unwrap().conn);
+        }
+        let now = T0.plus_ns(60 * MS);
+        for (k, (conn, base)) in
+            conns.iter().zip([Point3::new(5.0, 0.0, 0.0), Point3::new(0.0, 5.0, 0.0)]).enumerate()
+        {
+            let mut obs = observation(1, T0.plus_ns((50 + k as i64) * MS), base, &source);
+            // The array's frame is the map's, shifted: what it measures for the source.
+            let measured = fold.measured_direction(&array_in_map(base), &source).unwrap();
+            obs.doas[0].direction_in_array = measured;
+            c.observe(now, *conn, obs).unwrap();
+        }
+        let e = c.estimate(now).pop().expect("two aligned robots");
+        estimates.push(e.position().expect("a position"));
+    }
+    assert!((estimates[0] - source).norm() < 0.02, "declared: {} vs {source}", estimates[0]);
+    assert!(estimates[1].z - source.z > 0.15, "undeclared: {} is pulled up from {source}", estimates[1]);
+}
