@@ -22,7 +22,7 @@
 //! with the direction v̂ toward the predicted source but with what such an array
 //! measures for it, h(p̂) ([`crate::floor_image`]: elevation folded onto the upper
 //! hemisphere and pulled toward the floor image). B̂ is then built around h(p̂),
-//! and H's position block is the central difference of B̂ᵀh(p) (10 µm steps,
+//! and H's position block is the forward difference of B̂ᵀh(p) (10 µm steps,
 //! basis held fixed), since h has no simple closed form.
 
 use nalgebra::{
@@ -193,17 +193,17 @@ pub fn doa_innovation(state: &CvState, ray: &Ray, model: &DoaNoiseModel) -> Resu
     let ray = Ray { sigma_rad: ray.sigma_rad.max(model.min_sigma_rad), ..*ray };
     let noise_variance_rad2 = ray.angular_variance(range_m) * model.variance_inflation;
     let mut jacobian = Matrix2x6::zeros();
-    if fold_at_estimate.is_some() {
-        // The folded model has no simple closed form: central differences of
+    if let Some(at_estimate) = fold_at_estimate {
+        // The folded model has no simple closed form: forward differences of
         // B̂ᵀh(p) with the basis held fixed, 10 µm steps.
         const STEP_M: f64 = 1e-5;
         for k in 0..3 {
             let mut dp = Vector3::zeros();
             dp[k] = STEP_M;
-            let (Some(plus), Some(minus)) = (folded(&(position + dp)), folded(&(position - dp))) else {
+            let Some(plus) = folded(&(position + dp)) else {
                 return Err(Unusable::NonFinite);
             };
-            let column = basis.transpose() * (plus.into_inner() - minus.into_inner()) / (2.0 * STEP_M);
+            let column = basis.transpose() * (plus.into_inner() - at_estimate.into_inner()) / STEP_M;
             jacobian.fixed_view_mut::<2, 1>(0, k).copy_from(&column);
         }
     } else {

@@ -55,6 +55,9 @@ impl RobustLoss {
     }
 }
 
+/// Step of the forward differences of a folded ray's prediction (m).
+const FOLD_STEP_M: f64 = 1e-5;
+
 /// Result of a refinement.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct LmFit {
@@ -112,6 +115,9 @@ pub fn refine(rays: &[Ray], init: Point3<f64>, loss: RobustLoss, max_iterations:
             Term { b: Matrix2x3::from_rows(&[b1.transpose(), b2.transpose()]) }
         })
         .collect();
+    // Folded rays' predictions are interpolated from a table: stop at
+    // sub-micrometre steps rather than at machine precision.
+    let tolerance = if rays.iter().any(|r| r.fold.is_some()) { 1e-7 } else { 1e-10 };
     let mut x = init;
     let Some((mut cost, mut chi2)) = total_cost(rays, &terms, &x, loss) else {
         return LmFit { point: init, chi2: f64::INFINITY, iterations: 0, converged: false };
@@ -126,10 +132,22 @@ pub fn refine(rays: &[Ray], init: Point3<f64>, loss: RobustLoss, max_iterations:
         for (ray, t) in rays.iter().zip(&terms) {
             let (e, u, r) = residual(ray, t, &x).expect("current point is in front of every array");
             let w = 1.0 / ray.angular_variance(r.max(MIN_RANGE_M));
-            // For a folded ray this is the straight-direction Jacobian at the folded
-            // direction: approximate (it ignores how the floor-image pull changes
-            // with x), so steps converge a little slower, to the same minimum.
-            let jac = t.b * (Matrix3::identity() - u * u.transpose()) / r;
+            let jac = match ray.fold {
+                // A folded ray's prediction has no simple closed form: forward
+                // differences of Bᵀh(x) from h(x) = u, 10 µm steps.
+                Some(f) => {
+                    let mut jac = Matrix2x3::zeros();
+                    for k in 0..3 {
+                        let mut dx = Vector3::zeros();
+                        dx[k] = FOLD_STEP_M;
+                        if let Some(a) = f.measured_direction(&ray.origin_in_map, &(x + dx)) {
+                            jac.set_column(k, &(t.b * (a.into_inner() - u) / FOLD_STEP_M));
+                        }
+                    }
+                    jac
+                }
+                None => t.b * (Matrix3::identity() - u * u.transpose()) / r,
+            };
             let omega = loss.weight(e.norm_squared() * w) * w;
             h += jac.transpose() * jac * omega;
             g += jac.transpose() * e * omega;
@@ -147,7 +165,7 @@ pub fn refine(rays: &[Ray], init: Point3<f64>, loss: RobustLoss, max_iterations:
             let candidate = x + step;
             match total_cost(rays, &terms, &candidate, loss) {
                 Some((c, k)) if c < cost => {
-                    converged = step.norm() < 1e-10 * (1.0 + x.coords.norm());
+                    converged = step.norm() < tolerance * (1.0 + x.coords.norm());
                     x = candidate;
                     cost = c;
                     chi2 = k;
