@@ -152,23 +152,14 @@ fn tracker_doas(seconds: f64) -> Vec<(Stamp, u32, Ray)> {
     out
 }
 
-/// The same rays as seen by 16SoundsUSB arrays 0.5 m above the floor (the
-/// floor-image measurement model on, broadband source).
+/// The same rays as seen by planar arrays 0.5 m above the floor (8 microphones
+/// on a 0.36 m circle, about the 16SoundsUSB's aperture; the floor-image
+/// measurement model on, broadband source).
 fn folded(rays: &[Ray]) -> Vec<Ray> {
-    let corners = [
-        (1.0, -1.0),
-        (1.0, 0.0),
-        (1.0, 1.0),
-        (0.0, 1.0),
-        (-1.0, 1.0),
-        (-1.0, 0.0),
-        (-1.0, -1.0),
-        (0.0, -1.0),
-    ];
-    let mics: Vec<Point3<f64>> = [(0.191, 0.245, -0.0075), (0.332, 0.36, 0.0075)]
-        .iter()
-        .flat_map(|&(dx, dy, z)| {
-            corners.iter().map(move |&(sx, sy)| Point3::new(sx * dx * 0.5, sy * dy * 0.5, z))
+    let mics: Vec<Point3<f64>> = (0..8)
+        .map(|k| {
+            let a = k as f64 * std::f64::consts::FRAC_PI_4;
+            Point3::new(0.18 * a.cos(), 0.18 * a.sin(), 0.0)
         })
         .collect();
     let lobe = array_pattern(&mics, (100.0, 8000.0)).expect("planar array").lobe(None);
