@@ -361,33 +361,21 @@ pub fn array_pattern(positions: &[Point3<f64>], band_hz: (f64, f64)) -> Option<&
 }
 
 /// The band a track is heard over, from its spectral signature: the hull of
-/// the bands where it stands out. PHAT weighs each frequency bin alike once the
-/// source dominates it, so what counts is the level per hertz, not per band:
-/// a band's density is its level minus 10·log₁₀ of its width. The quietest
-/// band's density stands for the noise floor; a band counts when its density
-/// is at least `snr_db` above that floor, or within `range_db` of the loudest
-/// density (so a source that fills every band keeps them all). `edges_hz` are
-/// the hello's B + 1 band edges, `levels_db` the track's B band levels. `None`
+/// the bands within `range_db` of its strongest band. `edges_hz` are the
+/// hello's B + 1 band edges, `levels_db` the track's B band levels. `None`
 /// when the two do not match or no level is finite.
-pub fn heard_band(edges_hz: &[f64], levels_db: &[f32], snr_db: f64, range_db: f64) -> Option<(f64, f64)> {
+pub fn heard_band(edges_hz: &[f64], levels_db: &[f32], range_db: f64) -> Option<(f64, f64)> {
     if edges_hz.len() != levels_db.len() + 1 || levels_db.is_empty() {
         return None;
     }
-    let density: Vec<f64> = levels_db
-        .iter()
-        .zip(edges_hz.windows(2))
-        .map(|(l, e)| f64::from(*l) - 10.0 * (e[1] - e[0]).max(1e-9).log10())
-        .collect();
-    let finite = density.iter().copied().filter(|v| v.is_finite());
-    let (floor, top) = finite.fold((f64::MAX, f64::MIN), |(lo, hi), v| (lo.min(v), hi.max(v)));
-    if top == f64::MIN {
+    let top = levels_db.iter().copied().filter(|v| v.is_finite()).fold(f32::MIN, f32::max);
+    if top == f32::MIN {
         return None;
     }
-    // Nothing stands out from the rest by snr_db: the source fills every band.
-    let threshold = if top - floor < snr_db { floor } else { (floor + snr_db).max(top - range_db) };
-    let loud = |v: &f64| v.is_finite() && *v >= threshold;
-    let first = density.iter().position(loud)?;
-    let last = density.iter().rposition(loud)?;
+    let floor = f64::from(top) - range_db;
+    let loud = |v: &f32| v.is_finite() && f64::from(*v) >= floor;
+    let first = levels_db.iter().position(loud)?;
+    let last = levels_db.iter().rposition(loud)?;
     Some((edges_hz[first], edges_hz[last + 1]))
 }
 
@@ -505,27 +493,12 @@ mod tests {
     }
 
     #[test]
-    fn heard_band_is_the_hull_of_the_bands_above_the_noise_floor() {
-        // Octave bands: equal levels per band are densities falling 3 dB per band.
-        let edges: [f64; 7] = [100.0, 200.0, 400.0, 800.0, 1600.0, 3200.0, 6400.0];
-        let width_db: Vec<f32> = edges.windows(2).map(|e| (10.0 * (e[1] - e[0]).log10()) as f32).collect();
-        let at =
-            |density: [f32; 6]| -> Vec<f32> { density.iter().zip(&width_db).map(|(d, w)| d + w).collect() };
-        // A talker 30 dB above the noise floor in 400-3200 Hz.
-        assert_eq!(
-            heard_band(&edges, &at([-60.0, -58.0, -30.0, -28.0, -31.0, -60.0]), 10.0, 30.0),
-            Some((400.0, 3200.0))
-        );
-        // White noise: every band alike, all kept.
-        assert_eq!(heard_band(&edges, &at([-40.0; 6]), 10.0, 30.0), Some((100.0, 6400.0)));
-        // A hum 40 dB up at low frequencies over broadband 15 dB above the floor: the
-        // broadband part counts (PHAT weighs it alike).
-        assert_eq!(
-            heard_band(&edges, &at([-20.0, -45.0, -45.0, -45.0, -45.0, -60.0]), 10.0, 30.0),
-            Some((100.0, 3200.0))
-        );
-        assert_eq!(heard_band(&edges, &[0.0; 5], 10.0, 30.0), None);
-        assert_eq!(heard_band(&edges, &[f32::NAN; 6], 10.0, 30.0), None);
+    fn heard_band_is_the_hull_of_the_loud_bands() {
+        let edges = [100.0, 200.0, 400.0, 800.0, 1600.0, 3200.0, 6400.0];
+        assert_eq!(heard_band(&edges, &[-60.0, -20.0, -5.0, 0.0, -12.0, -45.0], 20.0), Some((200.0, 3200.0)));
+        assert_eq!(heard_band(&edges, &[0.0; 6], 20.0), Some((100.0, 6400.0)));
+        assert_eq!(heard_band(&edges, &[0.0; 5], 20.0), None);
+        assert_eq!(heard_band(&edges, &[f32::NAN; 6], 20.0), None);
     }
 
     #[test]

@@ -50,12 +50,9 @@ use positioning::Positioning;
 use sound_map::{AlignedRays, SoundMap};
 use tracking::Tracking;
 
-/// A track is taken as heard over the bands of its signature whose level per
-/// hertz is this many dB above the quietest band's ([`heard_band`]; PHAT weighs
-/// every bin the source dominates alike) ...
-const HEARD_BAND_SNR_DB: f64 = 10.0;
-/// ... or within this many dB of the loudest band's.
-const HEARD_BAND_RANGE_DB: f64 = 30.0;
+/// A track is taken as heard over the bands of its signature within this many
+/// dB of its strongest band (PHAT weighs every bin the source dominates alike).
+const HEARD_BAND_RANGE_DB: f64 = 20.0;
 
 /// The coordinator's answer to a valid hello.
 #[derive(Clone, Debug, PartialEq, Eq)]
@@ -322,7 +319,7 @@ impl Coordinator {
                 // the array's lobes are, and so how soon they merge.
                 let band = edges
                     .zip(d.signature.as_deref())
-                    .and_then(|(e, levels)| heard_band(e, levels, HEARD_BAND_SNR_DB, HEARD_BAND_RANGE_DB));
+                    .and_then(|(e, levels)| heard_band(e, levels, HEARD_BAND_RANGE_DB));
                 let fold = pattern.map(|p| FloorFold { array_height_m, reflection, lobe: p.lobe(band) });
                 let ray = Ray {
                     fold,
