@@ -43,7 +43,7 @@ use realfft::num_complex::Complex;
 use crate::array::{ArrayGeometry, SearchRegion};
 use crate::error::AgentError;
 use phat::{Band, CrossCorrelator};
-use refine::Refiner;
+use refine::{Refiner, Wavefront};
 use search::{Exclusion, SearchTables};
 
 /// How the fine grid is searched.
@@ -93,6 +93,17 @@ pub struct SrpConfig {
     pub refine: bool,
     /// Most Newton steps per peak.
     pub refine_iterations: usize,
+    /// Refine each peak with a spherical wavefront, its range a third
+    /// unknown: a plane-wave fit of a source a few metres from a 0.5 m array
+    /// biases its elevation low (1.3° at 5 m and 7° elevation for the
+    /// 16SoundsUSB layout, see [`refine`]). Default off: in reverberant rooms
+    /// that bias partly cancels the floor reflection's upward pull, and the
+    /// coordinator's floor-image model (`[doa] floor_reflection` 0.6) is
+    /// calibrated on plane-wave DoAs; with this on, 0.7 fits (measured in
+    /// `BENCHMARKS.md`, "Near-field refinement").
+    pub near_field: bool,
+    /// Nearest range the near-field refinement considers, m (default 0.5).
+    pub near_field_min_range_m: f64,
     /// Peaks whose grid coherence is below this are noise for every
     /// practical purpose: they are reported at grid resolution, unrefined.
     pub refine_min_coherence: f64,
@@ -117,6 +128,8 @@ impl Default for SrpConfig {
             max_coarse_cells_secondary: 3,
             refine: true,
             refine_iterations: 6,
+            near_field: false,
+            near_field_min_range_m: 0.5,
             refine_min_coherence: 0.05,
             max_sources: 2,
             min_separation_deg: 15.0,
@@ -125,6 +138,12 @@ impl Default for SrpConfig {
     }
 }
 
+/// Peaks below this grid coherence are refined as plane waves even with
+/// `near_field` on: their direction scatters far more than the near-field
+/// bias (sensor-noise peaks of a 16-microphone array reach ~0.05), and the
+/// range costs a third of the refinement again.
+const NEAR_FIELD_MIN_COHERENCE: f64 = 0.1;
+
 /// A direction where the steered response peaks in one frame.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct PotentialSource {
@@ -132,6 +151,10 @@ pub struct PotentialSource {
     pub direction_in_array: Unit<Vector3<f64>>,
     /// PHAT coherence at the peak: 1 for a noise-free plane wave, ≈ 0 for noise.
     pub energy: f64,
+    /// Inverse range 1/ρ the near-field refinement found, 1/m (0: a plane
+    /// wave fits best, or the peak was not refined). Frame by frame it is
+    /// noisy beyond a few metres; it is a by-product of an unbiased direction.
+    pub inverse_range_per_m: f64,
 }
 
 /// Work done by [`Srp::process`], see [`Srp::take_stats`].
@@ -162,8 +185,9 @@ pub struct Srp {
     mics: Vec<crate::array::Microphone>,
     gains: Vec<f32>,
     found: Vec<Vector3<f64>>,
-    /// Whether `found[j]` was refined, and how many of `found` were projected out.
-    found_refined: Vec<bool>,
+    /// Whether `found[j]` was refined (with its inverse range), and how many
+    /// of `found` were projected out.
+    found_refined: Vec<Option<f64>>,
     projected: usize,
     max_step_rad: f64,
     diffuse: diffuse::DiffuseMap,
@@ -211,6 +235,10 @@ impl Srp {
         }
         if config.max_sources == 0 {
             return Err(bad("max_sources", "must be at least 1".into()));
+        }
+        let min_range = config.near_field_min_range_m;
+        if !(min_range.is_finite() && (0.1..=100.0).contains(&min_range)) {
+            return Err(bad("near_field_min_range_m", format!("must be in 0.1..=100 m, got {min_range}")));
         }
         let region = match &config.region {
             None => array.default_region,
@@ -350,25 +378,25 @@ impl Srp {
             let grid_dir = Unit::new_normalize(self.tables.fine_dirs[f]);
             let grid_coherence = value as f64 / self.pair_weight(&grid_dir);
             let refine = self.config.refine && grid_coherence >= self.config.refine_min_coherence;
-            let (direction, energy) = if refine {
+            let (direction, energy, kappa) = if refine {
                 // Later peaks are refined and scored on what the earlier
                 // (refined) sources leave: project those out first.
                 for j in self.projected..self.found.len() {
-                    if self.found_refined[j] {
+                    if let Some(kappa) = self.found_refined[j] {
                         let d = Unit::new_unchecked(self.found[j]);
                         self.set_gains(&d);
-                        self.refiner.project_out(&mut self.cc, &d, &self.gains);
+                        self.refiner.project_out(&mut self.cc, &d, kappa, &self.gains);
                     }
                 }
                 self.projected = self.found.len();
                 let start = Unit::new_normalize(self.tables.quadratic_peak(&self.cc.lin, f));
-                self.refine_peak(start)
+                self.refine_peak(start, grid_coherence)
             } else {
-                (self.region.clamp(grid_dir), grid_coherence)
+                (self.region.clamp(grid_dir), grid_coherence, 0.0)
             };
-            out.push(PotentialSource { direction_in_array: direction, energy });
+            out.push(PotentialSource { direction_in_array: direction, energy, inverse_range_per_m: kappa });
             self.found.push(direction.into_inner());
-            self.found_refined.push(refine);
+            self.found_refined.push(refine.then_some(kappa));
             if out.len() < self.config.max_sources {
                 self.suppress(&direction);
             }
@@ -405,21 +433,48 @@ impl Srp {
         (0.5 * (s * s - s2)).max(1e-12)
     }
 
-    fn refine_peak(&mut self, start: Unit<Vector3<f64>>) -> (Unit<Vector3<f64>>, f64) {
+    /// The refined direction, its coherence and inverse range (1/m), from a
+    /// grid peak of coherence `grid_coherence`.
+    fn refine_peak(
+        &mut self,
+        start: Unit<Vector3<f64>>,
+        grid_coherence: f64,
+    ) -> (Unit<Vector3<f64>>, f64, f64) {
         self.set_gains(&start);
         let iterations = self.config.refine_iterations;
-        let (d, local) = match self.planar_normal {
+        let wavefront = if self.config.near_field && grid_coherence >= NEAR_FIELD_MIN_COHERENCE {
+            Wavefront::Spherical { max_inverse_range_per_m: 1.0 / self.config.near_field_min_range_m }
+        } else {
+            Wavefront::Plane
+        };
+        let (d, kappa, local) = match self.planar_normal {
             Some(n) => {
                 // A planar array hears a source and its mirror image through
                 // its plane identically: refine on the side inside the region.
                 let mirror = Unit::new_normalize(start.into_inner() - n.into_inner() * (2.0 * n.dot(&start)));
                 let side =
                     if self.region.axis.dot(&mirror) > self.region.axis.dot(&start) { mirror } else { start };
-                self.refiner.refine_planar(&self.cc, side, &n, &self.gains, iterations, self.max_step_rad)
+                self.refiner.refine_planar(
+                    &self.cc,
+                    side,
+                    &n,
+                    &self.gains,
+                    iterations,
+                    self.max_step_rad,
+                    wavefront,
+                )
             }
             None => {
                 let start = self.region.clamp(start);
-                self.refiner.refine(&self.cc, start, &self.gains, iterations, self.max_step_rad, &self.region)
+                self.refiner.refine(
+                    &self.cc,
+                    start,
+                    &self.gains,
+                    iterations,
+                    self.max_step_rad,
+                    &self.region,
+                    wavefront,
+                )
             }
         };
         let d = self.region.clamp(d);
@@ -432,7 +487,7 @@ impl Srp {
         let k = self.cc.band.len() as f64;
         let mean_energy = e0 / (s2 * k).max(1e-30);
         let coherence = (local.power - e0) / ((s1 * s1 - s2) * mean_energy * k).max(1e-30);
-        (d, coherence)
+        (d, coherence, kappa)
     }
 
     /// Zeroes every pair's correlation around the TDOAs of direction `d`.

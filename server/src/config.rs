@@ -133,7 +133,7 @@ pub struct DoaConfig {
     /// Pressure reflection coefficient of the floor, in [0, 1): how strongly a
     /// planar array hears the floor image that pulls its elevations up
     /// ([`crate::floor_image`]). 0 keeps only the folding of elevations onto the
-    /// upper hemisphere.
+    /// upper hemisphere. Default 0.6.
     pub floor_reflection: f64,
     /// Height of the robots' base frame above the floor (m); 0 for a
     /// `base_footprint`-style frame on the floor.

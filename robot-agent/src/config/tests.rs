@@ -181,7 +181,7 @@ fn type_and_unknown_key_errors_name_the_dotted_path() {
     assert!(e.starts_with("agent.toml: link.endpoint: unknown field `endpoint`"), "{e}");
     let e = shown_error("robot_id = \"pioneer-1\"", "robot_id = 7");
     assert!(e.starts_with("agent.toml: robot_id: invalid type: integer `7`"), "{e}");
-    let e = shown_error("\n[pipeline]\n", "\n[pipeline.srp]\ncoarse_level = \"two\"\n[pipeline]\n");
+    let e = shown_error("\nnear_field = false\n", "\nnear_field = false\ncoarse_level = \"two\"\n");
     assert!(e.starts_with("agent.toml: pipeline.srp.coarse_level: invalid type"), "{e}");
     // A syntax error still names the key on its line.
     let e = shown_error("hop_len = 128\nwindow", "hop_len = 12 8\nwindow");
