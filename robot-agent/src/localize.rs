@@ -3,7 +3,9 @@
 //!
 //! `{"stamp_ns":…, "sources":[{"id","x","y","z","activity"}]}` with (x, y, z)
 //! the unit vector toward the source in the array frame (x forward, y left,
-//! z up); optionally the hop's SRP peaks as `"potentials":[{"x","y","z","energy"}]`.
+//! z up); optionally the hop's SRP peaks as
+//! `"potentials":[{"x","y","z","energy"}]`, each with `"range_m"` when the
+//! near-field refinement (`[srp] near_field`) found the peak at a finite range.
 
 use std::io::Write;
 
@@ -28,6 +30,8 @@ struct PotentialLine {
     y: f64,
     z: f64,
     energy: f64,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    range_m: Option<f64>,
 }
 
 #[derive(Serialize)]
@@ -87,6 +91,7 @@ fn hop_line(r: &FrameResult, options: LineOptions) -> HopLine {
                     y: p.direction_in_array.y,
                     z: p.direction_in_array.z,
                     energy: p.energy,
+                    range_m: (p.inverse_range_per_m > 0.0).then(|| 1.0 / p.inverse_range_per_m),
                 })
                 .collect()
         }),

@@ -72,7 +72,8 @@ struct LocalizeArgs {
     /// Output file (default: standard output).
     #[arg(long)]
     out: Option<PathBuf>,
-    /// Also write this hop's SRP peaks: "potentials":[{"x","y","z","energy"}].
+    /// Also write this hop's SRP peaks: "potentials":[{"x","y","z","energy"}]
+    /// (and "range_m" with `[srp] near_field`).
     #[arg(long)]
     potentials: bool,
     /// Also write tentative (unconfirmed) tracks.

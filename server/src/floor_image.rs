@@ -135,6 +135,7 @@ impl LobeTable {
     /// The table of the array with microphones at `positions` (array frame, m)
     /// for an SRP over `band_hz`; `None` when the array is not planar, has no
     /// horizontal extent, has more than 32 microphones, or the band is not one.
+    #[cfg(test)]
     pub fn for_array(positions: &[Point3<f64>], band_hz: (f64, f64)) -> Option<LobeTable> {
         let pattern = ArrayPattern::for_array(positions, band_hz)?;
         let (k1, k2) = pattern.declared;
@@ -159,6 +160,7 @@ impl LobeTable {
     }
 
     /// Half-power half-width of the array's radial beam pattern, in c = cos e.
+    #[cfg(test)]
     pub fn half_width(&self) -> f64 {
         self.half_width
     }
