@@ -79,6 +79,9 @@ pub struct TrackedDoa {
     /// smoothed over ~100 ms; finite, within [`SIGNATURE_DB_RANGE`]. `None`:
     /// no signature (never an empty vector).
     pub signature: Option<Vec<f32>>,
+    /// PHAT coherence of the peaks that fed the track, in (0, 1], when the
+    /// robot knows it (see the proto's `TrackedDoa.coherence`).
+    pub coherence: Option<f64>,
 }
 
 /// A robot's DoAs at one instant with its pose at that instant.
@@ -373,6 +376,13 @@ impl TrackedDoa {
                 Problem::OutOfRange { value: sigma, range: "0 (unknown) or [1e-4, π] rad" },
             ));
         }
+        let coherence = finite(d.coherence, &format!("{field}.coherence"))?;
+        if !(0.0..=1.0).contains(&coherence) {
+            return Err(ValidationError::new(
+                format!("{field}.coherence"),
+                Problem::OutOfRange { value: coherence, range: "0 (unknown) or (0, 1]" },
+            ));
+        }
         let field = format!("{field}.signature_db");
         let (lo, hi) = SIGNATURE_DB_RANGE;
         for (i, &v) in d.signature_db.iter().enumerate() {
@@ -392,6 +402,7 @@ impl TrackedDoa {
             activity,
             angular_sigma_rad: (sigma > 0.0).then_some(sigma),
             signature: (!d.signature_db.is_empty()).then(|| d.signature_db.clone()),
+            coherence: (coherence > 0.0).then_some(coherence),
         })
     }
 
@@ -403,6 +414,7 @@ impl TrackedDoa {
             activity: self.activity,
             angular_sigma_rad: self.angular_sigma_rad.unwrap_or(0.0),
             signature_db: self.signature.clone().unwrap_or_default(),
+            coherence: self.coherence.unwrap_or(0.0),
         }
     }
 }
@@ -640,6 +652,7 @@ mod tests {
                 activity: 0.9,
                 angular_sigma_rad: Some(0.05),
                 signature: Some(vec![-10.0, 3.5, 0.0]),
+                coherence: Some(0.3),
             }],
         }
     }
@@ -655,6 +668,10 @@ mod tests {
                 < 1e-12
         );
         assert_eq!(back.doas[0].angular_sigma_rad, Some(0.05));
+        assert_eq!(back.doas[0].coherence, Some(0.3));
+        let mut unknown = o.clone();
+        unknown.doas[0].coherence = None;
+        assert_eq!(Observation::from_wire(&unknown.to_wire(), &limits()).unwrap().doas[0].coherence, None);
     }
 
     #[test]
@@ -663,6 +680,11 @@ mod tests {
         let mut w = observation().to_wire();
         w.doas[0].activity = 1.5;
         assert_eq!(Observation::from_wire(&w, &l).unwrap_err().field, "observation.doas[0].activity");
+        for bad in [f64::NAN, -0.1, 1.5] {
+            let mut w = observation().to_wire();
+            w.doas[0].coherence = bad;
+            assert_eq!(Observation::from_wire(&w, &l).unwrap_err().field, "observation.doas[0].coherence");
+        }
         let mut w = observation().to_wire();
         w.map_from_base = None;
         assert_eq!(Observation::from_wire(&w, &l).unwrap_err().field, "observation.map_from_base");
@@ -801,6 +823,7 @@ mod tests {
             activity: 0.5,
             angular_sigma_rad: None,
             signature: bands.map(|b| vec![1.0; b]),
+            coherence: None,
         };
         let with = |doas: Vec<TrackedDoa>| Observation { doas, ..observation() };
         assert!(with(vec![doa(1, Some(3)), doa(2, None)]).check_against(&h).is_ok());

@@ -88,6 +88,10 @@ pub use crate::srp::diffuse::NoiseModel;
 pub use config::TrackerConfig;
 use sphere_kf::SphereKf;
 
+/// Weight of each new hit in a track's average coherence (about the last
+/// 50 hits, 0.4 s of a source heard every hop).
+pub const COHERENCE_WEIGHT: f64 = 0.05;
+
 /// Largest accepted [`TrackerConfig::max_tracks`].
 pub const MAX_TRACKS: usize = 64;
 
@@ -106,6 +110,9 @@ pub struct TrackedDirection {
     pub confirmed: bool,
     /// Time since the track's last detection, seconds (0 when detected this hop).
     pub silent_s: f64,
+    /// PHAT coherence of the potentials that fed the track, averaged over
+    /// about its last 50 ([`COHERENCE_WEIGHT`]).
+    pub coherence: f64,
 }
 
 impl TrackedDirection {
@@ -120,6 +127,8 @@ impl TrackedDirection {
             activity: self.activity.clamp(0.0, 1.0),
             angular_sigma_rad: (sigma.is_finite() && sigma > 0.0).then_some(sigma.min(std::f64::consts::PI)),
             signature: None,
+            coherence: (self.coherence.is_finite() && self.coherence > 0.0)
+                .then_some(self.coherence.min(1.0)),
         }
     }
 }
@@ -131,6 +140,8 @@ struct Track {
     /// Learnt measurement variance per axis, rad².
     r2: f64,
     activity: f64,
+    /// Average PHAT coherence of the potentials associated with it.
+    coherence: f64,
     born_frame: u64,
     last_hit_frame: u64,
     hits_since_birth: u32,
@@ -140,6 +151,8 @@ struct Track {
 #[derive(Clone, Copy, Debug)]
 struct Candidate {
     last: Vector3<f64>,
+    /// Sum of its hits' coherences.
+    coherence_sum: f64,
     first_frame: u64,
     last_frame: u64,
     hits: u32,
@@ -294,6 +307,7 @@ impl DoaTracker {
                 angular_sigma_rad: sigma,
                 confirmed: t.confirmed,
                 silent_s: (self.frame - t.last_hit_frame) as f64 * self.dt,
+                coherence: t.coherence,
             });
         }
     }
@@ -341,6 +355,7 @@ impl DoaTracker {
             t.r2 = (0.95 * t.r2 + 0.05 * sample).clamp(min_r2, max_r2);
             t.kf.update(&z, t.r2 * self.inflation);
             t.activity += alpha * (1.0 - t.activity);
+            t.coherence += COHERENCE_WEIGHT * (potentials[pi].energy - t.coherence);
             t.last_hit_frame = self.frame;
             t.hits_since_birth += 1;
             if !t.confirmed && t.hits_since_birth >= cfg.confirm_hits {
@@ -384,12 +399,14 @@ impl DoaTracker {
                 Some(i) => {
                     let c = &mut self.candidates[i];
                     c.hits += 1;
+                    c.coherence_sum += p.energy;
                     c.last = z;
                     c.last_frame = frame;
                 }
                 None if self.candidates.len() < self.candidates.capacity() => {
                     self.candidates.push(Candidate {
                         last: z,
+                        coherence_sum: p.energy,
                         first_frame: frame,
                         last_frame: frame,
                         hits: 1,
@@ -409,6 +426,7 @@ impl DoaTracker {
                     kf,
                     r2,
                     activity: c.hits as f64 / cfg.birth_window_frames as f64,
+                    coherence: c.coherence_sum / c.hits.max(1) as f64,
                     born_frame: frame,
                     last_hit_frame: frame,
                     hits_since_birth: 0,

@@ -195,6 +195,7 @@ impl SstFrame {
                 activity: s.activity.clamp(0.0, 1.0),
                 angular_sigma_rad: Some(PRIOR_SIGMA_DEG.to_radians()),
                 signature: None,
+                coherence: None,
             });
         }
         Ok(OdasFrame { time_stamp: self.time_stamp, stamp: timing.stamp(self.time_stamp), doas })

@@ -481,6 +481,7 @@ mod tests {
             angular_sigma_rad: 0.01,
             confirmed: true,
             silent_s: 0.0,
+            coherence: 0.5,
         };
         let mut out = Vec::new();
         s.update(&spectra, &[track], &[0], &mut out);
@@ -512,6 +513,7 @@ mod tests {
             angular_sigma_rad: 0.01,
             confirmed: true,
             silent_s: 0.0,
+            coherence: 0.5,
         };
         let tracks = [track(5), track(9)];
         let mut out = Vec::with_capacity(4 * 24);

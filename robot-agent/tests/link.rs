@@ -210,6 +210,7 @@ fn observation(with_doa: bool) -> Observation {
                 activity: 0.9,
                 angular_sigma_rad: None,
                 signature: None,
+                coherence: None,
             }]
         } else {
             vec![]

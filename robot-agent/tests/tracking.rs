@@ -349,3 +349,34 @@ fn a_turning_robot_keeps_its_tracks_when_given_its_orientation() {
         }
     }
 }
+
+/// A track's coherence is the average PHAT coherence of the peaks that fed
+/// it: it follows the SNR (the coordinator reads it as how much of the
+/// array's cross-spectra still point at the source) and matches the peaks'.
+#[test]
+fn a_track_reports_the_coherence_of_its_peaks() {
+    let array = ArrayGeometry::load("16soundsusb-pioneer").unwrap();
+    let mics = synth::positions(&array);
+    let mut by_snr = Vec::new();
+    for snr in [0.0, 30.0] {
+        let mut rng = synth::rng(77);
+        let d = synth::random_direction(&array.default_region, &mut rng);
+        let mut x = synth::plane_wave(&mics, &d, FS, 1 << 14, &mut rng);
+        synth::add_sensor_noise(&mut x, snr, &mut rng);
+        let frames = synth::run(&mut pipeline(&array), &synth::interleave(&x, 0.1));
+        let last = frames.last().unwrap();
+        let track = last.tracks.first().expect("a track");
+        let peaks: Vec<f64> = frames[frames.len() - 40..]
+            .iter()
+            .filter_map(|f| f.potentials.first())
+            .map(|p| p.energy)
+            .collect();
+        let (_, median, _) = synth::stats(&peaks);
+        println!("{snr} dB: track coherence {:.3}, peaks' median {median:.3}", track.coherence);
+        assert!((track.coherence - median).abs() < 0.1, "{snr} dB: {} vs {median}", track.coherence);
+        let doa = track.to_doa(0.0);
+        assert_eq!(doa.coherence, Some(track.coherence));
+        by_snr.push(track.coherence);
+    }
+    assert!(by_snr[1] > by_snr[0] + 0.2 && by_snr[1] > 0.8, "{by_snr:?}");
+}

@@ -353,6 +353,7 @@ fn observation(i: usize, n: usize, seq: u64, stamp: Stamp) -> wire::RobotMessage
             activity: 0.9,
             angular_sigma_rad: Some(0.05),
             signature: None,
+            coherence: None,
         }],
     };
     wire::RobotMessage { msg: Some(Up::Observation(o.to_wire())) }
@@ -575,6 +576,7 @@ fn bench_sources(quick: bool) {
                         activity: 0.9,
                         angular_sigma_rad: Some(1f64.to_radians()),
                         signature: None,
+                        coherence: None,
                     }
                 })
                 .collect();

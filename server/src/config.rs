@@ -138,6 +138,14 @@ pub struct DoaConfig {
     /// Height of the robots' base frame above the floor (m); 0 for a
     /// `base_footprint`-style frame on the floor.
     pub base_height_m: f64,
+    /// Gain of the reflections' pull as the DoA's own coherence reports it:
+    /// for DoAs that carry a coherence C, the floor image's weight is
+    /// `R² = reverberant_pull · ((1 − C)/C)²` instead of `floor_reflection`²
+    /// ([`crate::floor_image::reverberant_reflection`]). 0 (the default)
+    /// uses `floor_reflection` for every DoA: the coherence model is
+    /// experimental (it fits the distance sweep's rooms, not `paper-static`'s;
+    /// see the module docs).
+    pub reverberant_pull: f64,
 }
 
 /// Acceptance limits of incoming messages.
@@ -166,7 +174,7 @@ pub struct OutputConfig {
     /// Append every observation the coordinator accepts to this JSON-lines file
     /// (what the robots sent, for debugging a fleet and checking replays):
     /// `{"robot_id", "sequence", "stamp_ns", "map_from_base": [x, y, z, qx, qy, qz, qw],
-    /// "doas": [{"track_id", "x", "y", "z", "activity", "angular_sigma_rad"}]}`
+    /// "doas": [{"track_id", "x", "y", "z", "activity", "angular_sigma_rad", "coherence"}]}`
     /// (metres; DoAs as unit vectors in the array frame; σ in rad or null).
     pub observations_jsonl: Option<PathBuf>,
 }
@@ -356,7 +364,13 @@ impl Default for AlignmentConfig {
 
 impl Default for DoaConfig {
     fn default() -> Self {
-        DoaConfig { default_sigma_deg: 3.0, min_activity: 0.0, floor_reflection: 0.6, base_height_m: 0.0 }
+        DoaConfig {
+            default_sigma_deg: 3.0,
+            min_activity: 0.0,
+            floor_reflection: 0.6,
+            base_height_m: 0.0,
+            reverberant_pull: 0.0,
+        }
     }
 }
 
@@ -409,6 +423,9 @@ impl CoordinatorConfig {
         }
         if !(0.0..1.0).contains(&self.doa.floor_reflection) {
             return err("doa.floor_reflection", format!("{} not in [0, 1)", self.doa.floor_reflection));
+        }
+        if !(0.0..=1.0).contains(&self.doa.reverberant_pull) {
+            return err("doa.reverberant_pull", format!("{} not in [0, 1]", self.doa.reverberant_pull));
         }
         if !(self.doa.base_height_m.is_finite() && self.doa.base_height_m.abs() <= 10.0) {
             return err("doa.base_height_m", format!("{} not in [-10, 10] m", self.doa.base_height_m));
@@ -641,6 +658,7 @@ mod tests {
             ("[tracking]\nlag = 0.3\n", "c.toml: tracking.lag: unknown field `lag`"),
             ("[doa]\nfloor_reflection = 1.0\n", "c.toml: doa.floor_reflection: 1 not in [0, 1)"),
             ("[doa]\nbase_height_m = nan\n", "c.toml: doa.base_height_m: "),
+            ("[doa]\nreverberant_pull = -0.1\n", "c.toml: doa.reverberant_pull: -0.1 not in [0, 1]"),
             ("[tracking]\nlag_s = -1.0\n", "c.toml: tracking.lag_s: "),
             ("[tracking]\nconfirm_updates = 40\n", "c.toml: tracking.confirm_updates: "),
             ("[tracking]\nenabled = \"yes\"\n", "c.toml: tracking.enabled: "),

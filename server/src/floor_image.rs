@@ -74,6 +74,24 @@
 //! −0.05, −0.05, +0.07, +0.07 m). Set it to 0 for an array that does not hear
 //! the floor (high mount, absorbing floor).
 //!
+//! **Coherence (experimental, `doa.reverberant_pull`, off by default).** The
+//! pull grows as the room's reflections take the SRP's bins over from the
+//! direct path, and soundmap agents send how much of it their track's peaks
+//! still point at: the PHAT coherence C (proto `TrackedDoa.coherence`). In
+//! the distance sweep's room the image weight each range needed (R² = 0.37,
+//! 0.42, 0.63, 0.64 at 3–6 m, RT60 0.5 s) follows `R² ≈ 0.06 ((1 − C)/C)²`
+//! with the Pioneer array's C = 0.29 → 0.20, and the same law holds in that
+//! room at RT60 0.25 s (C = 0.43 → 0.32), where the fixed R = 0.6
+//! over-corrects by 0.11–0.18 m: with the law the mean height errors there
+//! are +0.01 to +0.05 m, and at RT60 0.5 s within ±0.02 m to 5 m. But it does
+//! not carry over to `paper-static`'s room: at 3 m its arrays hear C = 0.23
+//! (the sweep's room: 0.29) with the *same* elevation bias (1.4°), so the
+//! law over-corrects there (in-band RSE p95 0.16 → 0.38 m, height
+//! −0.17 m). Coherence counts every reflection and the late field; the pull
+//! comes from the early vertical ones, and how the two relate depends on the
+//! room's shape and where the source stands in it. So it stays off, and
+//! [`reverberant_reflection`] is there for rooms where it has been checked.
+//!
 //! Assumptions, stated: the array is level (its plane parallel to the floor), the
 //! floor is the plane `doa.base_height_m` below the robot's base frame, and the
 //! floor reflects every frequency with the same R. An array is treated as
@@ -362,6 +380,24 @@ pub fn array_pattern(positions: &[Point3<f64>], band_hz: (f64, f64)) -> Option<&
     pattern
 }
 
+/// Largest reflection coefficient [`reverberant_reflection`] returns.
+pub const MAX_REFLECTION: f64 = 0.95;
+
+/// The image weight a DoA's own coherence calls for (see the module docs,
+/// "Coherence"): `R² = gain · ((1 − C)/C)²` with `C` the track's PHAT
+/// coherence rescaled to the band it is heard in (`band_fraction` = heard
+/// width / the SRP's width, so that a talker's empty bins do not count as
+/// reverberation), capped at [`MAX_REFLECTION`]. `None` for a coherence
+/// outside (0, 1] or a band fraction outside (0, 1].
+pub fn reverberant_reflection(coherence: f64, band_fraction: f64, gain: f64) -> Option<f64> {
+    if !(coherence > 0.0 && coherence <= 1.0 && band_fraction > 0.0 && band_fraction <= 1.0) {
+        return None;
+    }
+    let c = (coherence / band_fraction).min(1.0);
+    let x = (1.0 - c) / c;
+    Some((gain.max(0.0).sqrt() * x).min(MAX_REFLECTION))
+}
+
 /// The band a track is heard over, from its spectral signature: the hull of
 /// the bands within `range_db` of its strongest band. `edges_hz` are the
 /// hello's B + 1 band edges, `levels_db` the track's B band levels. `None`
@@ -524,5 +560,20 @@ mod tests {
         let v = (low - origin).normalize();
         assert!((d.x - v.x).abs() < 1e-12 && (d.y - v.y).abs() < 1e-12 && (d.z + v.z).abs() < 1e-12);
         assert!(dry.measured_direction(&origin, &Point3::new(0.0, 0.0, 2.0)).is_none());
+    }
+
+    #[test]
+    fn coherence_sets_the_reflection_within_bounds() {
+        // x = (1 − C)/C; R = √gain · x, capped.
+        let r = reverberant_reflection(0.25, 1.0, 0.06).unwrap();
+        assert!((r - 0.06f64.sqrt() * 3.0).abs() < 1e-12, "{r}");
+        // A talker heard over 40 % of the band: its coherence is rescaled first.
+        let talker = reverberant_reflection(0.1, 0.4, 0.06).unwrap();
+        assert!((talker - r).abs() < 1e-12, "{talker}");
+        assert_eq!(reverberant_reflection(1.0, 1.0, 0.06), Some(0.0));
+        assert_eq!(reverberant_reflection(0.01, 1.0, 0.06), Some(MAX_REFLECTION));
+        for (c, f) in [(0.0, 1.0), (-0.1, 1.0), (1.2, 1.0), (f64::NAN, 1.0), (0.3, 0.0), (0.3, 1.5)] {
+            assert_eq!(reverberant_reflection(c, f, 0.06), None, "{c} {f}");
+        }
     }
 }

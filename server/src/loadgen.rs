@@ -92,6 +92,7 @@ pub fn observation(spec: &RobotSpec, sequence: u64, stamp: Stamp) -> wire::Robot
             activity: 0.9,
             angular_sigma_rad: Some(0.05),
             signature: None,
+            coherence: None,
         }],
     };
     wire::RobotMessage { msg: Some(Up::Observation(obs.to_wire())) }

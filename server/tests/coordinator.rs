@@ -65,6 +65,7 @@ fn observation(sequence: u64, stamp: Stamp, base: Point3<f64>, source: &Point3<f
             activity: 0.9,
             angular_sigma_rad: Some(1f64.to_radians()),
             signature: None,
+            coherence: None,
         }],
     }
 }
@@ -335,4 +336,54 @@ fn declared_planar_arrays_get_the_floor_image_model_and_others_do_not() {
     }
     assert!((estimates[0] - source).norm() < 0.02, "declared: {} vs {source}", estimates[0]);
     assert!(estimates[1].z - source.z > 0.15, "undeclared: {} is pulled up from {source}", estimates[1]);
+}
+
+/// With `doa.reverberant_pull` on, a DoA's coherence sets the floor image's
+/// weight (`floor_image::reverberant_reflection`); off, the fixed
+/// `floor_reflection` does, whatever the DoA says.
+#[test]
+fn a_doas_coherence_sets_the_floor_image_weight_when_asked() {
+    use soundmap_server::floor_image::{FloorFold, array_pattern, reverberant_reflection};
+    let source = Point3::new(0.0, 0.0, 1.2);
+    let square: Vec<Point3<f64>> = (0..8)
+        .map(|k| {
+            let a = k as f64 * std::f64::consts::FRAC_PI_4;
+            Point3::new(0.15 * a.cos(), 0.15 * a.sin(), 0.0)
+        })
+        .collect();
+    let band = [100.0, 8000.0];
+    let lobe = array_pattern(&square, (band[0], band[1])).expect("planar").lobe(None);
+    let (coherence, pull) = (0.22, 0.06);
+    let reflection = reverberant_reflection(coherence, 1.0, pull).unwrap();
+    assert!(reflection > 0.8, "{reflection}");
+    let fold = FloorFold { array_height_m: 0.48, reflection, lobe };
+    let mut errors = Vec::new();
+    for on in [true, false] {
+        let mut config = CoordinatorConfig::default();
+        config.doa.reverberant_pull = if on { pull } else { 0.0 };
+        let mut c = Coordinator::new(config).unwrap();
+        let planar = ArrayInfo {
+            microphone_count: 8,
+            microphone_positions: square.clone(),
+            srp_band_hz: Some(band),
+            ..array()
+        };
+        let conns: Vec<_> = ["a", "b"]
+            .iter()
+            .map(|id| c.connect(T0, Hello { array: planar.clone(), ..hello(id) }, None).unwrap().conn)
+            .collect();
+        let now = T0.plus_ns(60 * MS);
+        for (k, (conn, base)) in
+            conns.iter().zip([Point3::new(5.0, 0.0, 0.0), Point3::new(0.0, 5.0, 0.0)]).enumerate()
+        {
+            let mut obs = observation(1, T0.plus_ns((50 + k as i64) * MS), base, &source);
+            obs.doas[0].direction_in_array = fold.measured_direction(&array_in_map(base), &source).unwrap();
+            obs.doas[0].coherence = Some(coherence);
+            c.observe(now, *conn, obs).unwrap();
+        }
+        let e = c.estimate(now).pop().expect("two aligned robots");
+        errors.push((e.position().expect("a position") - source).norm());
+    }
+    assert!(errors[0] < 0.02, "pull on: {errors:?}");
+    assert!(errors[1] > 0.05, "pull off (fixed reflection): {errors:?}");
 }

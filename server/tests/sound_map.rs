@@ -79,6 +79,7 @@ fn observe_with(
                 activity: 0.9,
                 angular_sigma_rad: Some(1f64.to_radians()),
                 signature: signature(track_id),
+                coherence: None,
             }
         })
         .collect();

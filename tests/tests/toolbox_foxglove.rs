@@ -40,6 +40,10 @@ fn live_view_and_recording_change_nothing_and_replay_mcap_reproduces_the_run() {
     let addr = free_port();
     let mcap = dir.join("run.mcap");
     let url = format!("ws://{addr}");
+    // The Python environment first: built inside the watcher's thread, it can
+    // take longer than the 4 s run on a loaded machine, and the client would
+    // then find the view already closed.
+    pytools::python();
     let watcher =
         std::thread::spawn(move || pytools::run("tests/python/foxglove_live_check.py", [url.as_str(), "30"]));
     let view = ViewArgs { foxglove: Some(addr), realtime: true, mcap: Some(mcap.clone()) };

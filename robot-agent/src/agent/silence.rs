@@ -58,6 +58,7 @@ mod tests {
             activity: 1.0,
             angular_sigma_rad: None,
             signature: None,
+            coherence: None,
         }
     }
 

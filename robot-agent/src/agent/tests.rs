@@ -32,6 +32,7 @@ fn doa(sigma: Option<f64>) -> TrackedDoa {
         activity: 1.0,
         angular_sigma_rad: sigma,
         signature: None,
+        coherence: None,
     }
 }
 

@@ -228,6 +228,7 @@ mod tests {
             activity,
             angular_sigma_rad: Some(0.01),
             signature: None,
+            coherence: None,
         }
     }
 

@@ -43,7 +43,7 @@ pub use tracking::TrackingCounters;
 
 use crate::config::CoordinatorConfig;
 use crate::error::ServerError;
-use crate::floor_image::{FloorFold, array_pattern, heard_band};
+use crate::floor_image::{FloorFold, array_pattern, heard_band, reverberant_reflection};
 use crate::ray::Ray;
 use crate::triangulation::triangulate;
 use positioning::Positioning;
@@ -272,6 +272,7 @@ impl Coordinator {
         let several = self.sound_map.is_some();
         let default_sigma = self.config.doa.default_sigma_deg.to_radians();
         let (reflection, base_height_m) = (self.config.doa.floor_reflection, self.config.doa.base_height_m);
+        let pull = self.config.doa.reverberant_pull;
         let history_ns = self.config.alignment.history_ms as i64 * 1_000_000;
         let max_history = self.config.server.max_history_per_robot;
         let entry = match self.entry_mut(conn, "observation") {
@@ -309,6 +310,7 @@ impl Coordinator {
             - obs.map_from_base.translation.z
             + base_height_m;
         let edges = entry.hello.signature_bands.as_deref();
+        let declared = entry.hello.array.srp_band_hz;
         let rays = obs
             .doas
             .iter()
@@ -320,6 +322,18 @@ impl Coordinator {
                 let band = edges
                     .zip(d.signature.as_deref())
                     .and_then(|(e, levels)| heard_band(e, levels, HEARD_BAND_RANGE_DB));
+                // The reflections' pull as this DoA's coherence reports it (the
+                // share of the SRP band the track is heard in rescales it).
+                let reflection = d
+                    .coherence
+                    .filter(|_| pull > 0.0)
+                    .and_then(|c| {
+                        let [lo, hi] = declared?;
+                        let (h_lo, h_hi) = band.unwrap_or((lo, hi));
+                        let fraction = ((h_hi.min(hi) - h_lo.max(lo)) / (hi - lo)).clamp(1e-3, 1.0);
+                        reverberant_reflection(c, fraction, pull)
+                    })
+                    .unwrap_or(reflection);
                 let fold = pattern.map(|p| FloorFold { array_height_m, reflection, lobe: p.lobe(band) });
                 let ray = Ray {
                     fold,

@@ -154,6 +154,7 @@ pub fn observation_line(robot_id: &str, obs: &soundmap_proto::Observation) -> St
             serde_json::json!({
                 "track_id": d.track_id, "x": v.x, "y": v.y, "z": v.z,
                 "activity": d.activity, "angular_sigma_rad": d.angular_sigma_rad,
+                "coherence": d.coherence,
             })
         })
         .collect();

@@ -171,6 +171,7 @@ pub fn observation_of(
             activity: 0.9,
             angular_sigma_rad: Some(sigma_rad),
             signature: None,
+            coherence: None,
         }],
     }
     .to_wire()
