@@ -294,16 +294,21 @@ fn a_band_without_90_degrees_is_refused_naming_the_field() {
 /// mirrored floor image); robots that declare no band get them taken as
 /// straight directions. DoAs here are made by the model itself, 5 m away, where
 /// the pull is large.
-#[test]
-fn declared_planar_arrays_get_the_floor_image_model_and_others_do_not() {
-    use soundmap_server::floor_image::{FloorFold, array_pattern};
-    let source = Point3::new(0.0, 0.0, 1.2);
-    let square: Vec<Point3<f64>> = (0..8)
+/// A planar array of 8 microphones on a 0.15 m circle.
+fn octagon() -> Vec<Point3<f64>> {
+    (0..8)
         .map(|k| {
             let a = k as f64 * std::f64::consts::FRAC_PI_4;
             Point3::new(0.15 * a.cos(), 0.15 * a.sin(), 0.0)
         })
-        .collect();
+        .collect()
+}
+
+#[test]
+fn declared_planar_arrays_get_the_floor_image_model_and_others_do_not() {
+    use soundmap_server::floor_image::{FloorFold, array_pattern};
+    let source = Point3::new(0.0, 0.0, 1.2);
+    let square = octagon();
     let band = [100.0, 8000.0];
     let lobe = array_pattern(&square, (band[0], band[1])).expect("planar").lobe(None);
     let mut estimates = Vec::new();
@@ -345,12 +350,7 @@ fn declared_planar_arrays_get_the_floor_image_model_and_others_do_not() {
 fn a_doas_coherence_sets_the_floor_image_weight_when_asked() {
     use soundmap_server::floor_image::{FloorFold, array_pattern, reverberant_reflection};
     let source = Point3::new(0.0, 0.0, 1.2);
-    let square: Vec<Point3<f64>> = (0..8)
-        .map(|k| {
-            let a = k as f64 * std::f64::consts::FRAC_PI_4;
-            Point3::new(0.15 * a.cos(), 0.15 * a.sin(), 0.0)
-        })
-        .collect();
+    let square = octagon();
     let band = [100.0, 8000.0];
     let lobe = array_pattern(&square, (band[0], band[1])).expect("planar").lobe(None);
     let (coherence, pull) = (0.22, 0.06);

@@ -369,44 +369,15 @@ impl Refiner {
         wavefront: Wavefront,
     ) -> (Unit<Vector3<f64>>, f64, Local) {
         let bound = self.range_bound(wavefront);
-        let mut d = d0;
-        let mut t = 0.0;
-        let (mut e1, mut e2) = tangent_basis(&d);
-        let mut cur = Local::default();
-        // The plane-wave peak first, then the range from there: a range that
-        // the array cannot resolve (small aperture, far source) leaves the
-        // plane-wave peak as it is.
-        for phase in [None, bound].into_iter().take(if bound.is_some() { 2 } else { 1 }) {
-            let with_range = phase.is_some();
-            cur = self.local(cc, &d, &e1, &e2, gains, true, t, with_range);
-            for _ in 0..iterations {
-                let mut step = newton_step(&cur, max_step_rad, t, phase);
-                if norm(step) < STEP_TOLERANCE {
-                    // Taken unchecked (see STEP_TOLERANCE); the returned
-                    // power is that of the last evaluated point.
-                    d = region.clamp(exp_map(&d, &e1, &e2, [step[0], step[1]]));
-                    (e1, e2) = tangent_basis(&d);
-                    t += step[2];
-                    break;
-                }
-                let mut accepted = false;
-                for _ in 0..4 {
-                    let cand = region.clamp(exp_map(&d, &e1, &e2, [step[0], step[1]]));
-                    let (c1, c2) = tangent_basis(&cand);
-                    let next = self.local(cc, &cand, &c1, &c2, gains, true, t + step[2], with_range);
-                    if next.power >= cur.power {
-                        (d, e1, e2, cur) = (cand, c1, c2, next);
-                        t += step[2];
-                        accepted = true;
-                        break;
-                    }
-                    step = [0.5 * step[0], 0.5 * step[1], 0.5 * step[2]];
-                }
-                if !accepted {
-                    break;
-                }
-            }
-        }
+        let apply = |d: &Unit<Vector3<f64>>, step: [f64; 2]| {
+            let (e1, e2) = tangent_basis(d);
+            region.clamp(exp_map(d, &e1, &e2, step))
+        };
+        let evaluate = |this: &mut Self, d: &Unit<Vector3<f64>>, t: f64, with_range: bool| {
+            let (e1, e2) = tangent_basis(d);
+            this.local(cc, d, &e1, &e2, gains, true, t, with_range)
+        };
+        let (d, t, cur) = self.ascend(d0, bound, iterations, max_step_rad, apply, evaluate);
         (d, t / self.range_scale, cur)
     }
 
@@ -436,26 +407,51 @@ impl Refiner {
             let up = (1.0 - h[0] * h[0] - h[1] * h[1]).max(0.0).sqrt();
             Unit::new_normalize(e1 * h[0] + e2 * h[1] + n.into_inner() * (side * up))
         };
-        let mut h = [e1.dot(&d0), e2.dot(&d0)];
+        let apply = |h: &[f64; 2], step: [f64; 2]| [h[0] + step[0], h[1] + step[1]];
+        let evaluate = |this: &mut Self, h: &[f64; 2], t: f64, with_range: bool| {
+            this.local(cc, &lift(*h), &e1, &e2, gains, false, t, with_range)
+        };
+        let h0 = [e1.dot(&d0), e2.dot(&d0)];
+        let (h, t, cur) = self.ascend(h0, bound, iterations, max_step, apply, evaluate);
+        (lift(h), t / self.range_scale, cur)
+    }
+
+    /// The ascent of [`Self::refine`] and [`Self::refine_planar`] over a
+    /// state `S` (a direction, or an in-plane vector): `apply` moves a state by
+    /// a (u, v) step, `evaluate` gives the power and its derivatives at a
+    /// state and scaled inverse range `t`. The plane-wave peak first, then the
+    /// range from there when `bound` is set: a range that the array cannot
+    /// resolve (small aperture, far source) leaves the plane-wave peak as it
+    /// is. Returns the state, `t` and the last evaluation.
+    fn ascend<S: Copy>(
+        &mut self,
+        mut state: S,
+        bound: Option<f64>,
+        iterations: usize,
+        max_step: f64,
+        apply: impl Fn(&S, [f64; 2]) -> S,
+        mut evaluate: impl FnMut(&mut Self, &S, f64, bool) -> Local,
+    ) -> (S, f64, Local) {
         let mut t = 0.0;
         let mut cur = Local::default();
-        // The plane-wave peak first, then the range (as in [`Self::refine`]).
         for phase in [None, bound].into_iter().take(if bound.is_some() { 2 } else { 1 }) {
             let with_range = phase.is_some();
-            cur = self.local(cc, &lift(h), &e1, &e2, gains, false, t, with_range);
+            cur = evaluate(self, &state, t, with_range);
             for _ in 0..iterations {
                 let mut step = newton_step(&cur, max_step, t, phase);
                 if norm(step) < STEP_TOLERANCE {
-                    h = [h[0] + step[0], h[1] + step[1]];
+                    // Taken unchecked (see STEP_TOLERANCE); the returned
+                    // power is that of the last evaluated point.
+                    state = apply(&state, [step[0], step[1]]);
                     t += step[2];
                     break;
                 }
                 let mut accepted = false;
                 for _ in 0..4 {
-                    let cand = [h[0] + step[0], h[1] + step[1]];
-                    let next = self.local(cc, &lift(cand), &e1, &e2, gains, false, t + step[2], with_range);
+                    let cand = apply(&state, [step[0], step[1]]);
+                    let next = evaluate(self, &cand, t + step[2], with_range);
                     if next.power >= cur.power {
-                        (h, cur) = (cand, next);
+                        (state, cur) = (cand, next);
                         t += step[2];
                         accepted = true;
                         break;
@@ -467,7 +463,7 @@ impl Refiner {
                 }
             }
         }
-        (lift(h), t / self.range_scale, cur)
+        (state, t, cur)
     }
 
     /// Removes the wave from `d` at inverse range `inverse_range_per_m` (0:
