@@ -79,8 +79,6 @@ pub enum Wavefront {
 /// Beamformer-domain Newton refinement.
 #[derive(Debug)]
 pub struct Refiner {
-    /// Microphone positions divided by the speed of sound, seconds per unit direction.
-    delays: Vec<Vector3<f64>>,
     /// Microphone positions, m, and their squared norms.
     positions: Vec<Vector3<f64>>,
     norms2: Vec<f64>,
@@ -124,7 +122,6 @@ impl Refiner {
         let rms =
             (positions.iter().map(|p| p.norm_squared()).sum::<f64>() / positions.len().max(1) as f64).sqrt();
         Refiner {
-            delays: positions.iter().map(|p| p / speed_of_sound).collect(),
             positions: positions.to_vec(),
             norms2: positions.iter().map(|p| p.norm_squared()).collect(),
             range_scale: (0.5 * rms).max(1e-3),
@@ -243,7 +240,7 @@ impl Refiner {
         let padded = self.padded;
         let accs = if with_range { ACCS } else { 7 };
         self.sums[..accs * 2 * padded].fill(0.0);
-        for i in 0..self.delays.len() {
+        for i in 0..self.positions.len() {
             let g = gains[i];
             if g == 0.0 {
                 continue;
@@ -278,13 +275,26 @@ impl Refiner {
                 }
             }
         }
-        // Per bin: B, its derivatives, and the power's derivatives, in lanes.
+        let v = if with_range { self.bin_sums::<true>() } else { self.bin_sums::<false>() };
+        Local {
+            power: v[0],
+            grad: [2.0 * v[1], 2.0 * v[2], 2.0 * v[6]],
+            hess: [2.0 * v[3], 2.0 * v[4], 2.0 * v[5], 2.0 * v[7], 2.0 * v[8], 2.0 * v[9]],
+        }
+    }
+
+    /// Per bin, from the accumulators: B, its derivatives and the power's,
+    /// summed over bins in lanes: `[Σ|B|², Σ Re B*B_u, Σ Re B*B_v, ½P_uu, ½P_uv,
+    /// ½P_vv]`, then with `RANGE` `[Σ Re B*B_t, ½P_ut, ½P_vt, ½P_tt]` (0 without).
+    fn bin_sums<const RANGE: bool>(&self) -> [f64; 10] {
+        let padded = self.padded;
         let s = |acc: usize| -> (&[f32], &[f32]) {
             self.sums[acc * 2 * padded..(acc + 1) * 2 * padded].split_at(padded)
         };
         let ((b_r, b_i), (sa_r, sa_i), (sb_r, sb_i), (sc_r, sc_i)) = (s(0), s(1), s(2), s(3));
         let ((sbb_r, sbb_i), (sbc_r, sbc_i), (scc_r, scc_i)) = (s(4), s(5), s(6));
-        let mut acc = [[0f32; LANES]; 6];
+        let ((sk_r, sk_i), (sbk_r, sbk_i), (sck_r, sck_i), (skk_r, skk_i)) = (s(7), s(8), s(9), s(10));
+        let mut acc = [[0f32; LANES]; 10];
         for base in (0..padded).step_by(LANES) {
             for l in 0..LANES {
                 let k = base + l;
@@ -303,41 +313,20 @@ impl Refiner {
                 acc[3][l] += bur * bur + bui * bui + br * buur + bi * buui;
                 acc[4][l] += bur * bvr + bui * bvi + br * buvr + bi * buvi;
                 acc[5][l] += bvr * bvr + bvi * bvi + br * bvvr + bi * bvvi;
-            }
-        }
-        let sum = |a: &[f32; LANES]| a.iter().map(|&v| v as f64).sum::<f64>();
-        let mut local = Local {
-            power: sum(&acc[0]),
-            grad: [2.0 * sum(&acc[1]), 2.0 * sum(&acc[2]), 0.0],
-            hess: [2.0 * sum(&acc[3]), 2.0 * sum(&acc[4]), 2.0 * sum(&acc[5]), 0.0, 0.0, 0.0],
-        };
-        if with_range {
-            let ((sk_r, sk_i), (sbk_r, sbk_i), (sck_r, sck_i), (skk_r, skk_i)) = (s(7), s(8), s(9), s(10));
-            let mut acc = [[0f32; LANES]; 4];
-            for base in (0..padded).step_by(LANES) {
-                for l in 0..LANES {
-                    let k = base + l;
-                    let (om, om2) = (self.omega[k], self.omega2[k]);
-                    let (br, bi) = (b_r[k], b_i[k]);
-                    let (bur, bui) = (om * sb_i[k], -om * sb_r[k]);
-                    let (bvr, bvi) = (om * sc_i[k], -om * sc_r[k]);
+                if RANGE {
                     // B_t = −jω Σ kY; B_ut = −ω² Σ bkY, B_vt = −ω² Σ ckY, B_tt = −ω² Σ k²Y
                     let (btr, bti) = (om * sk_i[k], -om * sk_r[k]);
                     let (butr, buti) = (-om2 * sbk_r[k], -om2 * sbk_i[k]);
                     let (bvtr, bvti) = (-om2 * sck_r[k], -om2 * sck_i[k]);
                     let (bttr, btti) = (-om2 * skk_r[k], -om2 * skk_i[k]);
-                    acc[0][l] += br * btr + bi * bti;
-                    acc[1][l] += bur * btr + bui * bti + br * butr + bi * buti;
-                    acc[2][l] += bvr * btr + bvi * bti + br * bvtr + bi * bvti;
-                    acc[3][l] += btr * btr + bti * bti + br * bttr + bi * btti;
+                    acc[6][l] += br * btr + bi * bti;
+                    acc[7][l] += bur * btr + bui * bti + br * butr + bi * buti;
+                    acc[8][l] += bvr * btr + bvi * bti + br * bvtr + bi * bvti;
+                    acc[9][l] += btr * btr + bti * bti + br * bttr + bi * btti;
                 }
             }
-            local.grad[2] = 2.0 * sum(&acc[0]);
-            local.hess[3] = 2.0 * sum(&acc[1]);
-            local.hess[4] = 2.0 * sum(&acc[2]);
-            local.hess[5] = 2.0 * sum(&acc[3]);
         }
-        local
+        acc.map(|a| a.iter().map(|&v| v as f64).sum::<f64>())
     }
 
     /// The scaled inverse range `t` bounds of a wavefront: `None` for a plane wave.
@@ -434,7 +423,7 @@ impl Refiner {
     ) -> (S, f64, Local) {
         let mut t = 0.0;
         let mut cur = Local::default();
-        for phase in [None, bound].into_iter().take(if bound.is_some() { 2 } else { 1 }) {
+        for phase in std::iter::once(None).chain(bound.map(Some)) {
             let with_range = phase.is_some();
             cur = evaluate(self, &state, t, with_range);
             for _ in 0..iterations {
@@ -487,7 +476,7 @@ impl Refiner {
         let (e1, e2) = tangent_basis(d);
         // B (into sums[0]) and every microphone's phasors (into ph).
         self.sums[..2 * padded].fill(0.0);
-        for i in 0..self.delays.len() {
+        for i in 0..self.positions.len() {
             let a = self.delay_terms(i, d, &e1, &e2, t)[0];
             self.steer(cc, i, a, true);
             let g = gains[i];
@@ -498,7 +487,7 @@ impl Refiner {
             }
         }
         let (br, bi) = self.sums[..2 * padded].split_at(padded);
-        for i in 0..self.delays.len() {
+        for i in 0..self.positions.len() {
             let g = gains[i] / norm2;
             let (phr, phi) = self.ph[2 * i * padded..2 * (i + 1) * padded].split_at(padded);
             let xr = &mut cc.phat_re[i * padded..(i + 1) * padded];
@@ -557,7 +546,7 @@ where
     nalgebra::DefaultAllocator: nalgebra::allocator::Allocator<D, D> + nalgebra::allocator::Allocator<D>,
 {
     let scale = eig.eigenvalues.abs().max().max(1e-30);
-    let mut step = g.clone() * 0.0;
+    let mut step = nalgebra::OVector::<f64, D>::zeros_generic(g.shape_generic().0, nalgebra::Const::<1>);
     for i in 0..g.len() {
         let (lambda, v) = (eig.eigenvalues[i], eig.eigenvectors.column(i).into_owned());
         let gv = g.dot(&v);
