@@ -428,7 +428,28 @@ pub struct FloorFold {
     pub lobe: &'static LobeTable,
 }
 
+/// Step of [`FloorFold::derivatives`] (m).
+const DERIVATIVE_STEP_M: f64 = 1e-5;
+
 impl FloorFold {
+    /// ∂h/∂x, ∂h/∂y, ∂h/∂z (map axes, per metre) of the measured direction
+    /// h = [`Self::measured_direction`] at `source`, where it is `at`: forward
+    /// differences of 10 µm, since h has no simple closed form. `None` for an
+    /// axis whose stepped point has no measured direction.
+    pub fn derivatives(
+        &self,
+        origin: &Point3<f64>,
+        source: &Point3<f64>,
+        at: &Unit<Vector3<f64>>,
+    ) -> [Option<Vector3<f64>>; 3] {
+        std::array::from_fn(|k| {
+            let mut step = Vector3::zeros();
+            step[k] = DERIVATIVE_STEP_M;
+            let moved = self.measured_direction(origin, &(source + step))?;
+            Some((moved.into_inner() - at.into_inner()) / DERIVATIVE_STEP_M)
+        })
+    }
+
     /// The direction the array at `origin` measures for a source at `source`
     /// (map frame, z up): the source's azimuth, elevation acos(c_d − β·Δc) ≥ 0.
     /// `None` when the source is straight above or below the array.

@@ -22,8 +22,9 @@
 //! with the direction v̂ toward the predicted source but with what such an array
 //! measures for it, h(p̂) ([`crate::floor_image`]: elevation folded onto the upper
 //! hemisphere and pulled toward the floor image). B̂ is then built around h(p̂),
-//! and H's position block is the forward difference of B̂ᵀh(p) (10 µm steps,
-//! basis held fixed), since h has no simple closed form.
+//! and H's position block is B̂ᵀ ∂h/∂p with the basis held fixed, ∂h/∂p by
+//! forward differences ([`crate::floor_image::FloorFold::derivatives`]), since
+//! h has no simple closed form.
 
 use nalgebra::{
     Matrix2, Matrix2x6, Matrix3, Matrix3x2, Matrix6, Matrix6x2, Point3, Vector2, Vector3, Vector6,
@@ -176,8 +177,7 @@ pub fn doa_innovation(state: &CvState, ray: &Ray, model: &DoaNoiseModel) -> Resu
         return Err(Unusable::TooClose { range_m });
     }
     let position = state.position();
-    let folded = |p: &Point3<f64>| ray.fold.and_then(|f| f.measured_direction(&ray.origin_in_map, p));
-    let fold_at_estimate = folded(&position);
+    let fold_at_estimate = ray.fold.and_then(|f| f.measured_direction(&ray.origin_in_map, &position));
     let v_hat = fold_at_estimate.unwrap_or(nalgebra::Unit::new_unchecked(v / range_m));
     let (b1, b2) = tangent_basis(&v_hat);
     let basis = Matrix3x2::from_columns(&[b1, b2]);
@@ -193,18 +193,13 @@ pub fn doa_innovation(state: &CvState, ray: &Ray, model: &DoaNoiseModel) -> Resu
     let ray = Ray { sigma_rad: ray.sigma_rad.max(model.min_sigma_rad), ..*ray };
     let noise_variance_rad2 = ray.angular_variance(range_m) * model.variance_inflation;
     let mut jacobian = Matrix2x6::zeros();
-    if let Some(at_estimate) = fold_at_estimate {
-        // The folded model has no simple closed form: forward differences of
-        // B̂ᵀh(p) with the basis held fixed, 10 µm steps.
-        const STEP_M: f64 = 1e-5;
-        for k in 0..3 {
-            let mut dp = Vector3::zeros();
-            dp[k] = STEP_M;
-            let Some(plus) = folded(&(position + dp)) else {
+    if let (Some(fold), Some(at_estimate)) = (ray.fold, fold_at_estimate) {
+        // B̂ᵀ ∂h/∂p with the basis held fixed (h by forward differences).
+        for (k, dh) in fold.derivatives(&ray.origin_in_map, &position, &at_estimate).into_iter().enumerate() {
+            let Some(dh) = dh else {
                 return Err(Unusable::NonFinite);
             };
-            let column = basis.transpose() * (plus.into_inner() - at_estimate.into_inner()) / STEP_M;
-            jacobian.fixed_view_mut::<2, 1>(0, k).copy_from(&column);
+            jacobian.fixed_view_mut::<2, 1>(0, k).copy_from(&(basis.transpose() * dh));
         }
     } else {
         jacobian.fixed_view_mut::<2, 3>(0, 0).copy_from(&(basis.transpose() / range_m));

@@ -55,9 +55,6 @@ impl RobustLoss {
     }
 }
 
-/// Step of the forward differences of a folded ray's prediction (m).
-const FOLD_STEP_M: f64 = 1e-5;
-
 /// Result of a refinement.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct LmFit {
@@ -133,15 +130,14 @@ pub fn refine(rays: &[Ray], init: Point3<f64>, loss: RobustLoss, max_iterations:
             let (e, u, r) = residual(ray, t, &x).expect("current point is in front of every array");
             let w = 1.0 / ray.angular_variance(r.max(MIN_RANGE_M));
             let jac = match ray.fold {
-                // A folded ray's prediction has no simple closed form: forward
-                // differences of Bᵀh(x) from h(x) = u, 10 µm steps.
+                // A folded ray's prediction has no simple closed form: Bᵀ ∂h/∂x
+                // by forward differences from h(x) = u (FloorFold::derivatives).
                 Some(f) => {
                     let mut jac = Matrix2x3::zeros();
-                    for k in 0..3 {
-                        let mut dx = Vector3::zeros();
-                        dx[k] = FOLD_STEP_M;
-                        if let Some(a) = f.measured_direction(&ray.origin_in_map, &(x + dx)) {
-                            jac.set_column(k, &(t.b * (a.into_inner() - u) / FOLD_STEP_M));
+                    let at = nalgebra::Unit::new_unchecked(u);
+                    for (k, dh) in f.derivatives(&ray.origin_in_map, &x, &at).into_iter().enumerate() {
+                        if let Some(dh) = dh {
+                            jac.set_column(k, &(t.b * dh));
                         }
                     }
                     jac
