@@ -89,7 +89,7 @@ pub use config::TrackerConfig;
 use sphere_kf::SphereKf;
 
 /// Weight of each new hit in a track's average coherence (about the last
-/// 50 hits, 0.4 s of a source heard every hop).
+/// 20 hits, 0.16 s of a source heard every hop).
 pub const COHERENCE_WEIGHT: f64 = 0.05;
 
 /// Largest accepted [`TrackerConfig::max_tracks`].
@@ -111,7 +111,7 @@ pub struct TrackedDirection {
     /// Time since the track's last detection, seconds (0 when detected this hop).
     pub silent_s: f64,
     /// PHAT coherence of the potentials that fed the track, averaged over
-    /// about its last 50 ([`COHERENCE_WEIGHT`]).
+    /// about its last 20 ([`COHERENCE_WEIGHT`]).
     pub coherence: f64,
 }
 

@@ -203,16 +203,21 @@ fn pioneer_in_reverberant_rooms() {
     assert!(reverb.median < 2.5 && reverb.max < 8.0, "RT60 0.65 s: {reverb:?}");
 }
 
+/// The default pipeline with the near-field refinement on.
+fn near_field() -> PipelineConfig {
+    PipelineConfig {
+        srp: soundmap_agent::pipeline::SrpConfig { near_field: true, ..Default::default() },
+        ..PipelineConfig::default()
+    }
+}
+
 /// CI subset of the near-field refinement (`[srp] near_field`): in the same
 /// rooms without reflections, the Pioneer array's plane-wave fit reads
 /// sources a few metres away too low (0.31° median, 0.97° at 5 m); the
 /// spherical wavefront removes that bias.
 #[test]
 fn near_field_refinement_in_rooms_without_reflections() {
-    let near = PipelineConfig {
-        srp: soundmap_agent::pipeline::SrpConfig { near_field: true, ..Default::default() },
-        ..PipelineConfig::default()
-    };
+    let near = near_field();
     let plane = run_set("16soundsusb-pioneer", 0.65, 4, false, 100);
     let sphere = run_set_with(&near, "16soundsusb-pioneer", 0.65, 4, false, 100);
     print_row("pioneer, plane wave", 0.65, false, &plane);
@@ -227,10 +232,7 @@ fn near_field_refinement_in_rooms_without_reflections() {
 #[test]
 #[ignore = "about a minute; run with --ignored --nocapture"]
 fn near_field_sweep() {
-    let near = PipelineConfig {
-        srp: soundmap_agent::pipeline::SrpConfig { near_field: true, ..Default::default() },
-        ..PipelineConfig::default()
-    };
+    let near = near_field();
     println!(
         "{:<24} {:>9} {:>12} {:>9} {:>9} {:>9}",
         "preset, wavefront", "RT60", "reflections", "median", "p95", "max"
