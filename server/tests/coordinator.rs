@@ -308,39 +308,14 @@ fn octagon() -> Vec<Point3<f64>> {
 fn declared_planar_arrays_get_the_floor_image_model_and_others_do_not() {
     use soundmap_server::floor_image::{FloorFold, array_pattern};
     let source = Point3::new(0.0, 0.0, 1.2);
-    let square = octagon();
     let band = [100.0, 8000.0];
-    let lobe = array_pattern(&square, (band[0], band[1])).expect("planar").lobe(None);
-    let mut estimates = Vec::new();
-    for declared in [true, false] {
-        let config = CoordinatorConfig::default();
-        let fold = FloorFold { array_height_m: 0.48, reflection: config.doa.floor_reflection, lobe };
-        let mut c = Coordinator::new(config).unwrap();
-        let planar = ArrayInfo {
-            microphone_count: 8,
-            microphone_positions: square.clone(),
-            srp_band_hz: declared.then_some(band),
-            ..array()
-        };
-        let mut conns = Vec::new();
-        for id in ["a", "b"] {
-            conns.push(c.connect(T0, Hello { array: planar.clone(), ..hello(id) }, None).unwrap().conn);
-        }
-        let now = T0.plus_ns(60 * MS);
-        for (k, (conn, base)) in
-            conns.iter().zip([Point3::new(5.0, 0.0, 0.0), Point3::new(0.0, 5.0, 0.0)]).enumerate()
-        {
-            let mut obs = observation(1, T0.plus_ns((50 + k as i64) * MS), base, &source);
-            // The array's frame is the map's, shifted: what it measures for the source.
-            let measured = fold.measured_direction(&array_in_map(base), &source).unwrap();
-            obs.doas[0].direction_in_array = measured;
-            c.observe(now, *conn, obs).unwrap();
-        }
-        let e = c.estimate(now).pop().expect("two aligned robots");
-        estimates.push(e.position().expect("a position"));
-    }
-    assert!((estimates[0] - source).norm() < 0.02, "declared: {} vs {source}", estimates[0]);
-    assert!(estimates[1].z - source.z > 0.15, "undeclared: {} is pulled up from {source}", estimates[1]);
+    let lobe = array_pattern(&octagon(), (band[0], band[1])).expect("planar").lobe(None);
+    let config = CoordinatorConfig::default();
+    let fold = FloorFold { array_height_m: 0.48, reflection: config.doa.floor_reflection, lobe };
+    let declared = folded_estimate(config.clone(), Some(band), &fold, None, &source);
+    let undeclared = folded_estimate(config, None, &fold, None, &source);
+    assert!((declared - source).norm() < 0.02, "declared: {declared} vs {source}");
+    assert!(undeclared.z - source.z > 0.15, "undeclared: {undeclared} is pulled up from {source}");
 }
 
 /// With `doa.reverberant_pull` on, a DoA's coherence sets the floor image's
@@ -350,40 +325,52 @@ fn declared_planar_arrays_get_the_floor_image_model_and_others_do_not() {
 fn a_doas_coherence_sets_the_floor_image_weight_when_asked() {
     use soundmap_server::floor_image::{FloorFold, array_pattern, reverberant_reflection};
     let source = Point3::new(0.0, 0.0, 1.2);
-    let square = octagon();
     let band = [100.0, 8000.0];
-    let lobe = array_pattern(&square, (band[0], band[1])).expect("planar").lobe(None);
+    let lobe = array_pattern(&octagon(), (band[0], band[1])).expect("planar").lobe(None);
     let (coherence, pull) = (0.22, 0.06);
     let reflection = reverberant_reflection(coherence, 1.0, pull).unwrap();
     assert!(reflection > 0.8, "{reflection}");
     let fold = FloorFold { array_height_m: 0.48, reflection, lobe };
-    let mut errors = Vec::new();
-    for on in [true, false] {
-        let mut config = CoordinatorConfig::default();
-        config.doa.reverberant_pull = if on { pull } else { 0.0 };
-        let mut c = Coordinator::new(config).unwrap();
-        let planar = ArrayInfo {
-            microphone_count: 8,
-            microphone_positions: square.clone(),
-            srp_band_hz: Some(band),
-            ..array()
-        };
-        let conns: Vec<_> = ["a", "b"]
-            .iter()
-            .map(|id| c.connect(T0, Hello { array: planar.clone(), ..hello(id) }, None).unwrap().conn)
-            .collect();
-        let now = T0.plus_ns(60 * MS);
-        for (k, (conn, base)) in
-            conns.iter().zip([Point3::new(5.0, 0.0, 0.0), Point3::new(0.0, 5.0, 0.0)]).enumerate()
-        {
-            let mut obs = observation(1, T0.plus_ns((50 + k as i64) * MS), base, &source);
-            obs.doas[0].direction_in_array = fold.measured_direction(&array_in_map(base), &source).unwrap();
-            obs.doas[0].coherence = Some(coherence);
-            c.observe(now, *conn, obs).unwrap();
-        }
-        let e = c.estimate(now).pop().expect("two aligned robots");
-        errors.push((e.position().expect("a position") - source).norm());
-    }
+    let errors: Vec<f64> = [pull, 0.0]
+        .into_iter()
+        .map(|p| {
+            let mut config = CoordinatorConfig::default();
+            config.doa.reverberant_pull = p;
+            (folded_estimate(config, Some(band), &fold, Some(coherence), &source) - source).norm()
+        })
+        .collect();
     assert!(errors[0] < 0.02, "pull on: {errors:?}");
     assert!(errors[1] > 0.05, "pull off (fixed reflection): {errors:?}");
+}
+
+/// The position a coordinator with `config` publishes when two robots with
+/// [`octagon`] arrays (declaring `band`, or no SRP band), 5 m from `source`
+/// at 90°, report what `fold` says such arrays measure for it, each DoA
+/// carrying `coherence`.
+fn folded_estimate(
+    config: CoordinatorConfig,
+    band: Option<[f64; 2]>,
+    fold: &soundmap_server::floor_image::FloorFold,
+    coherence: Option<f64>,
+    source: &Point3<f64>,
+) -> Point3<f64> {
+    let mut c = Coordinator::new(config).unwrap();
+    let planar =
+        ArrayInfo { microphone_count: 8, microphone_positions: octagon(), srp_band_hz: band, ..array() };
+    let conns: Vec<_> = ["a", "b"]
+        .iter()
+        .map(|id| c.connect(T0, Hello { array: planar.clone(), ..hello(id) }, None).unwrap().conn)
+        .collect();
+    let now = T0.plus_ns(60 * MS);
+    for (k, (conn, base)) in
+        conns.iter().zip([Point3::new(5.0, 0.0, 0.0), Point3::new(0.0, 5.0, 0.0)]).enumerate()
+    {
+        let mut obs = observation(1, T0.plus_ns((50 + k as i64) * MS), base, source);
+        // The array's frame is the map's, shifted: what it measures for the source.
+        obs.doas[0].direction_in_array = fold.measured_direction(&array_in_map(base), source).unwrap();
+        obs.doas[0].coherence = coherence;
+        c.observe(now, *conn, obs).unwrap();
+    }
+    let e = c.estimate(now).pop().expect("two aligned robots");
+    e.position().expect("a position")
 }
