@@ -2,6 +2,8 @@
 //! DoAs (theory §4).
 //!
 //! - [`filter`]: the CV model and the per-DoA tangent-plane EKF update (Joseph form);
+//! - [`imm`]: a still and a moving CV mode mixed by an IMM filter (the published
+//!   state is their mixture);
 //! - [`lag_buffer`]: the fixed-lag buffer that applies late DoAs exactly;
 //! - [`lifecycle`]: tentative → confirmed → lost;
 //! - `step`: what one DoA does to the replayable state of a track;
@@ -10,7 +12,8 @@
 //! [`SourceTracker`] ties them together. It is pure: stamps and `now` are inputs.
 //! Use:
 //! 1. when there is no active track ([`SourceTracker::needs_track`]), start one
-//!    from a trusted triangulation ([`SourceTracker::initialize_from_triangulation`]),
+//!    from a triangulation its gate accepted, or found only too uncertain at a
+//!    good geometry ([`SourceTracker::initialize_from_triangulation`]),
 //!    stamped with the newest stamp of the rays it used: DoAs stamped at or before
 //!    it are refused ([`UpdateOutcome::BeforeTrack`]), since their information is
 //!    already in the initial covariance;
@@ -25,6 +28,7 @@
 
 pub mod config;
 pub mod filter;
+pub mod imm;
 pub mod lag_buffer;
 pub mod lifecycle;
 pub mod noise;
@@ -41,8 +45,8 @@ pub use outcome::UpdateOutcome;
 
 use crate::ray::Ray;
 use crate::stats::chi2_quantile;
-use crate::triangulation::{Gate, Triangulation};
-use filter::doa_innovation;
+use crate::triangulation::{Gate, GateReason, Solution, Triangulation};
+use imm::ImmState;
 use lag_buffer::{Insertion, LagBuffer, Refusal};
 use lifecycle::{Confirmation, check_loss};
 use noise::Learned;
@@ -160,7 +164,7 @@ impl SourceTracker {
     /// [`TrackerConfig::validate`]; out-of-range counts are clamped.
     pub fn new(config: TrackerConfig) -> Self {
         let params = StepParams {
-            noise: config.process_noise(),
+            modes: config.modes(),
             doa: config.doa_noise(),
             rules: config.lifecycle(),
             association_gate: chi2_quantile(2, config.association_probability),
@@ -223,7 +227,7 @@ impl SourceTracker {
             .map_or_else(Learned::default, |t| Learned::scales_of(&t.buffer.latest().0.learned));
         let start = Snapshot {
             stamp,
-            filter: CvState::new(position, Vector3::zeros(), p),
+            filter: ImmState::new(CvState::new(position, Vector3::zeros(), p)),
             confirmation: Confirmation::default(),
             last_update: None,
             last_nis: None,
@@ -245,7 +249,32 @@ impl SourceTracker {
         InitOutcome::Started { track_id: self.last_id }
     }
 
-    /// Starts a track from a triangulation whose gate accepted it, with its
+    /// Whether a track may start from `solution`: its gate accepted it, or
+    /// rejected it only as too uncertain (predicted RMS above the gate's) while
+    /// its geometry is good (θ at or above
+    /// [`TrackerConfig::good_geometry_theta_deg`], so the rays are
+    /// well-conditioned and agree) and its RMS is below
+    /// [`TrackerConfig::lost_max_rms_m`].
+    ///
+    /// The second case is noisy DoAs at a good geometry (ODAS's ≈ 4° grid
+    /// 3–4 m away: one triangulation's RMS is 0.5–0.6 m at θ ≈ 40°). No single
+    /// triangulation of them passes the gate, yet the filter's averaging pins
+    /// the source down within a second; the track starts tentative and is
+    /// confirmed (and trusted) only once its own RMS and its consistency allow.
+    fn may_start_from(&self, solution: &Solution) -> bool {
+        match solution.gate {
+            Gate::Accepted => true,
+            Gate::Rejected(GateReason::Uncertain { rms_m, .. }) => {
+                solution.quality.theta_deg.min(180.0 - solution.quality.theta_deg)
+                    >= self.config.good_geometry_theta_deg
+                    && rms_m < self.config.lost_max_rms_m
+            }
+            Gate::Rejected(_) => false,
+        }
+    }
+
+    /// Starts a track from a triangulation whose gate accepted it (or found it
+    /// only too uncertain at a good geometry, see `may_start_from`), with its
     /// covariance × [`TrackerConfig::init_covariance_inflation`]. `stamp` should
     /// be the newest stamp of the rays it used.
     pub fn initialize_from_triangulation(
@@ -256,7 +285,7 @@ impl SourceTracker {
         let Some(solution) = triangulation.solution() else {
             return InitOutcome::Rejected(InitRejection::NoSolution);
         };
-        if solution.gate != Gate::Accepted {
+        if !self.may_start_from(solution) {
             return InitOutcome::Rejected(InitRejection::Untrusted);
         }
         let Some(covariance) = solution.quality.covariance else {
@@ -323,20 +352,20 @@ impl SourceTracker {
         let track = self.track.as_ref().filter(|t| t.lost.is_none())?;
         let (before, _) = track.buffer.state_before(stamp)?;
         let predicted =
-            before.filter.predicted(stamp.seconds_since(before.stamp).max(0.0), &self.params.noise);
-        doa_innovation(&predicted, ray, &self.params.doa).ok().map(|i| i.nis)
+            before.filter.predicted(stamp.seconds_since(before.stamp).max(0.0), &self.params.modes);
+        predicted.innovation(ray, &self.params.doa).ok().map(|i| i.nis)
     }
 
     /// Declares the track lost if it has been silent too long or its covariance
     /// predicted to `now` is too large (see [`lifecycle`]).
     pub fn maintain(&mut self, now: Stamp) {
-        let noise = self.params.noise;
+        let modes = self.params.modes;
         let rules = self.params.rules;
         let Some(track) = self.track.as_mut().filter(|t| t.lost.is_none()) else {
             return;
         };
         let (s, _) = track.buffer.latest();
-        let rms = s.filter.predicted(now.seconds_since(s.stamp).max(0.0), &noise).position_rms_m();
+        let rms = s.filter.predicted(now.seconds_since(s.stamp).max(0.0), &modes).combined().position_rms_m();
         let last = s.last_update.unwrap_or(track.buffer.start());
         let single_since =
             s.confirmation.single_run_start().unwrap_or(track.buffer.start()).max(track.buffer.start());
@@ -347,7 +376,7 @@ impl SourceTracker {
     pub fn estimate(&self) -> Option<TrackEstimate> {
         let track = self.track.as_ref()?;
         let (s, _) = track.buffer.latest();
-        Some(self.describe(track, s, s.stamp, s.filter))
+        Some(self.describe(track, s, s.stamp, s.filter.combined()))
     }
 
     /// The estimate predicted to `stamp` without changing the track (a stamp
@@ -357,9 +386,9 @@ impl SourceTracker {
         let (s, _) = track.buffer.latest();
         let dt = stamp.seconds_since(s.stamp);
         if dt <= 0.0 {
-            return Some(self.describe(track, s, s.stamp, s.filter));
+            return Some(self.describe(track, s, s.stamp, s.filter.combined()));
         }
-        Some(self.describe(track, s, stamp, s.filter.predicted(dt, &self.params.noise)))
+        Some(self.describe(track, s, stamp, s.filter.predicted(dt, &self.params.modes).combined()))
     }
 
     fn describe(&self, track: &Track, s: &Snapshot, stamp: Stamp, filter: CvState) -> TrackEstimate {

@@ -1,5 +1,5 @@
 //! The source tracker inside the coordinator: every live robot's dominant DoA
-//! goes to the [`SourceTracker`], a track starts from a trusted triangulation
+//! goes to the [`SourceTracker`], a track starts from a trusted triangulation (or one only too uncertain at a good geometry)
 //! when there is none (or it was lost), and each estimate carries the track's
 //! state beside the triangulation.
 //!

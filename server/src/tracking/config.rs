@@ -4,6 +4,7 @@ use serde::Deserialize;
 use soundmap_proto::{Problem, ValidationError};
 
 use super::filter::{DoaNoiseModel, ProcessNoise};
+use super::imm::{Diffusion, Modes};
 use super::lifecycle::{LifecycleRules, MAX_CONFIRM_UPDATES};
 use super::noise::{LearningRules, MAX_WINDOW};
 use crate::ray::MIN_RANGE_M;
@@ -17,12 +18,29 @@ pub struct TrackerConfig {
     /// Whether the coordinator runs the tracker (`[tracking] enabled`). Default
     /// true. [`SourceTracker`](super::SourceTracker) itself ignores it.
     pub enabled: bool,
-    /// Horizontal (x, y) white-noise acceleration PSD q̃ (m²/s³). Default 0.5:
-    /// σ_a ≈ 1 m/s² over τ ≈ 0.5 s, a walking person (theory §4.1). Use ~1e-3
-    /// for a seated or static talker.
+    /// Horizontal (x, y) white-noise acceleration PSD q̃ of the *moving* mode
+    /// (m²/s³). Default 0.5: σ_a ≈ 1 m/s² over τ ≈ 0.5 s, a walking person
+    /// (theory §4.1). The tracker mixes it with the still mode below
+    /// (`tracking::imm`).
     pub accel_psd_horizontal_m2_per_s3: f64,
-    /// Vertical (z) PSD q̃ (m²/s³). Default 0.01: talker height changes slowly.
+    /// Vertical (z) PSD q̃ of the moving mode (m²/s³). Default 0.01: talker
+    /// height changes slowly.
     pub accel_psd_vertical_m2_per_s3: f64,
+    /// Whether the tracker mixes a *still* mode with the moving one (an IMM
+    /// filter, `tracking::imm`): a still source is then averaged over
+    /// seconds, a walker followed as before. Default true; false gives the
+    /// single constant-velocity filter.
+    pub still_mode: bool,
+    /// Position diffusion D of the still mode, x and y (m²/s: variance D·Δt).
+    /// Default 0.002 (≈ 10 cm in 5 s, a seated talker's sway).
+    pub still_diffusion_horizontal_m2_per_s: f64,
+    /// Position diffusion D of the still mode, z (m²/s). Default 0.0005.
+    pub still_diffusion_vertical_m2_per_s: f64,
+    /// Mean time a source stays in one mode (s), which sets the switch
+    /// probability ½(1 − e^{−Δt/τ}) per step. Default 10: longer keeps
+    /// the idle mode's weight (and so its lag or jitter in the mixture) smaller,
+    /// shorter lets the modes take over from each other sooner.
+    pub mode_sojourn_s: f64,
     /// 1-σ of the initial horizontal velocity (m/s). Default 1.0 (theory §4.2).
     pub initial_velocity_sigma_horizontal_m_per_s: f64,
     /// 1-σ of the initial vertical velocity (m/s). Default 0.3.
@@ -121,6 +139,10 @@ impl Default for TrackerConfig {
             enabled: true,
             accel_psd_horizontal_m2_per_s3: 0.5,
             accel_psd_vertical_m2_per_s3: 0.01,
+            still_mode: true,
+            still_diffusion_horizontal_m2_per_s: 0.002,
+            still_diffusion_vertical_m2_per_s: 0.0005,
+            mode_sojourn_s: 10.0,
             initial_velocity_sigma_horizontal_m_per_s: 1.0,
             initial_velocity_sigma_vertical_m_per_s: 0.3,
             init_covariance_inflation: 1.5,
@@ -164,6 +186,8 @@ impl TrackerConfig {
         let non_negative = [
             ("accel_psd_horizontal_m2_per_s3", self.accel_psd_horizontal_m2_per_s3),
             ("accel_psd_vertical_m2_per_s3", self.accel_psd_vertical_m2_per_s3),
+            ("still_diffusion_horizontal_m2_per_s", self.still_diffusion_horizontal_m2_per_s),
+            ("still_diffusion_vertical_m2_per_s", self.still_diffusion_vertical_m2_per_s),
             ("initial_velocity_sigma_horizontal_m_per_s", self.initial_velocity_sigma_horizontal_m_per_s),
             ("initial_velocity_sigma_vertical_m_per_s", self.initial_velocity_sigma_vertical_m_per_s),
             ("lag_s", self.lag_s),
@@ -182,6 +206,7 @@ impl TrackerConfig {
             }
         }
         let positive = [
+            ("mode_sojourn_s", self.mode_sojourn_s),
             ("init_covariance_inflation", self.init_covariance_inflation),
             ("doa_variance_inflation", self.doa_variance_inflation),
             ("min_sigma_rad", self.min_sigma_rad),
@@ -234,10 +259,17 @@ impl TrackerConfig {
         Ok(())
     }
 
-    pub(super) fn process_noise(&self) -> ProcessNoise {
-        ProcessNoise {
-            horizontal_m2_per_s3: self.accel_psd_horizontal_m2_per_s3,
-            vertical_m2_per_s3: self.accel_psd_vertical_m2_per_s3,
+    pub(super) fn modes(&self) -> Modes {
+        Modes {
+            still: self.still_mode.then_some(Diffusion {
+                horizontal_m2_per_s: self.still_diffusion_horizontal_m2_per_s,
+                vertical_m2_per_s: self.still_diffusion_vertical_m2_per_s,
+            }),
+            moving: ProcessNoise {
+                horizontal_m2_per_s3: self.accel_psd_horizontal_m2_per_s3,
+                vertical_m2_per_s3: self.accel_psd_vertical_m2_per_s3,
+            },
+            sojourn_s: self.mode_sojourn_s,
         }
     }
 

@@ -6,7 +6,8 @@ use std::cmp::Ordering;
 
 use soundmap_proto::Stamp;
 
-use super::filter::{CvState, DoaNoiseModel, ProcessNoise, Unusable, doa_innovation, joseph_update};
+use super::filter::{DoaNoiseModel, Unusable};
+use super::imm::{ImmState, Modes};
 use super::lifecycle::{Confirmation, LifecycleRules};
 use super::noise::{InnovationSample, Learned, LearningRules};
 use super::outcome::UpdateOutcome;
@@ -55,7 +56,7 @@ impl Eq for Observation {}
 #[derive(Clone, Copy, Debug)]
 pub(super) struct Snapshot {
     pub(super) stamp: Stamp,
-    pub(super) filter: CvState,
+    pub(super) filter: ImmState,
     pub(super) confirmation: Confirmation,
     pub(super) last_update: Option<Stamp>,
     pub(super) last_nis: Option<f64>,
@@ -70,7 +71,7 @@ pub(super) struct Snapshot {
 /// The numbers a DoA step needs.
 #[derive(Clone, Copy, Debug)]
 pub(super) struct StepParams {
-    pub(super) noise: ProcessNoise,
+    pub(super) modes: Modes,
     pub(super) doa: DoaNoiseModel,
     pub(super) rules: LifecycleRules,
     pub(super) association_gate: f64,
@@ -95,10 +96,10 @@ pub(super) fn step(
     obs: &Observation,
     p: &StepParams,
 ) -> (Snapshot, UpdateOutcome) {
-    let predicted = prev.filter.predicted(stamp.seconds_since(prev.stamp).max(0.0), &p.noise);
+    let predicted = prev.filter.predicted(stamp.seconds_since(prev.stamp).max(0.0), &p.modes);
     let mut next = Snapshot { stamp, filter: predicted, ..*prev };
     let (model, scale) = p.doa_for(&prev.learned, obs.robot);
-    let inn = match doa_innovation(&predicted, &obs.ray, &model) {
+    let inn = match predicted.innovation(&obs.ray, &model) {
         Ok(inn) => inn,
         Err(u) => {
             next.unusable += 1;
@@ -118,11 +119,12 @@ pub(super) fn step(
         next.gated += 1;
         return (next, UpdateOutcome::Gated { nis: inn.nis, threshold });
     }
-    let Some(post) = joseph_update(&predicted, &inn) else {
+    let Some(updated) = predicted.updated(&obs.ray, &model) else {
         next.unusable += 1;
         return (next, UpdateOutcome::Unusable(Unusable::NonFinite));
     };
-    next.filter = post;
+    next.filter = updated;
+    let post = updated.combined();
     next.applied += 1;
     next.nis_sum += inn.nis;
     next.last_update = Some(stamp);
