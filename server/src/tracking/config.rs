@@ -37,7 +37,7 @@ pub struct TrackerConfig {
     /// Position diffusion D of the still mode, z (m²/s). Default 0.0005.
     pub still_diffusion_vertical_m2_per_s: f64,
     /// Mean time a source stays in one mode (s), which sets the switch
-    /// probability ½(1 − e^{−Δt/τ}) per step. Default 10: longer keeps
+    /// probability ½(1 − e^{−Δt/τ}) per step. Default 30: longer keeps
     /// the idle mode's weight (and so its lag or jitter in the mixture) smaller,
     /// shorter lets the modes take over from each other sooner.
     pub mode_sojourn_s: f64,
@@ -142,7 +142,7 @@ impl Default for TrackerConfig {
             still_mode: true,
             still_diffusion_horizontal_m2_per_s: 0.002,
             still_diffusion_vertical_m2_per_s: 0.0005,
-            mode_sojourn_s: 10.0,
+            mode_sojourn_s: 30.0,
             initial_velocity_sigma_horizontal_m_per_s: 1.0,
             initial_velocity_sigma_vertical_m_per_s: 0.3,
             init_covariance_inflation: 1.5,
