@@ -76,12 +76,16 @@ const WITHOUT_HONEST_NOISE: &str = "[tracking]\nlearn_doa_noise = false\nconsist
     good_geometry_theta_deg = 0.0\nevidence_updates = 0\n";
 
 fn run(seed: u64) -> Figures {
-    run_with(seed, None)
+    run_with(seed, None, 0.0)
 }
 
-fn run_with(seed: u64, coordinator_toml: Option<&str>) -> Figures {
-    let dir = std::env::temp_dir().join(format!("soundmap-odas-{}-{seed}", std::process::id()));
-    let trial = write_trial(&dir, &OdasTrialSpec { seed, ..OdasTrialSpec::default() }).unwrap();
+fn run_with(seed: u64, coordinator_toml: Option<&str>, walk_m_per_s: f64) -> Figures {
+    // One directory per run: the sweeps may run in parallel.
+    static RUNS: std::sync::atomic::AtomicU32 = std::sync::atomic::AtomicU32::new(0);
+    let run = RUNS.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+    let dir = std::env::temp_dir().join(format!("soundmap-odas-{}-{run}-{seed}", std::process::id()));
+    let spec = OdasTrialSpec { seed, walk_m_per_s, ..OdasTrialSpec::default() };
+    let trial = write_trial(&dir, &spec).unwrap();
     // Through the command line's own parser, as a user would give it.
     let robots = trial.robots.iter().map(|r| parse_robot(&r.to_argument()).unwrap()).collect();
     let coordinator_config = coordinator_toml.map(|toml| {
@@ -133,22 +137,43 @@ fn odas_recording_replays_and_is_honest() {
 #[test]
 #[ignore = "sweep: seeds 1-5, ~1 min"]
 fn odas_sweep() {
-    sweep(None);
+    sweep(None, 0.0);
+}
+
+#[test]
+#[ignore = "sweep: seeds 1-5 with the talker walking back and forth at 0.7 m/s, ~1 min"]
+fn odas_sweep_walking_talker() {
+    sweep(None, 0.7);
+}
+
+/// The tracker's single CV filter (no still mode), for comparison.
+const SINGLE_MODE: &str = "[tracking]\nstill_mode = false\n";
+
+#[test]
+#[ignore = "sweep: seeds 1-5 with the single-mode tracker, still and walking talker, ~2 min"]
+fn odas_sweep_single_mode() {
+    sweep(Some(SINGLE_MODE), 0.0);
+    sweep(Some(SINGLE_MODE), 0.7);
 }
 
 #[test]
 #[ignore = "sweep: seeds 1-5 with the tracker's noise learning and trust conditions off, ~1 min"]
 fn odas_sweep_without_honest_noise() {
-    sweep(Some(WITHOUT_HONEST_NOISE));
+    sweep(Some(WITHOUT_HONEST_NOISE), 0.0);
 }
 
-fn sweep(coordinator_toml: Option<&str>) {
-    let all: Vec<Figures> = (1..=5).map(|seed| run_with(seed, coordinator_toml)).collect();
+fn sweep(coordinator_toml: Option<&str>, walk_m_per_s: f64) {
+    let all: Vec<Figures> = (1..=5).map(|seed| run_with(seed, coordinator_toml, walk_m_per_s)).collect();
     let mean = |g: fn(&Figures) -> f64| all.iter().map(g).sum::<f64>() / all.len() as f64;
     println!(
-        "{}seeds 1-5: in-band p95 soundmap {:.3} m vs closest point {:.3} m; trusted inside 99 %: {:.1} %; \
+        "{}{}seeds 1-5: in-band p95 soundmap {:.3} m vs closest point {:.3} m; trusted inside 99 %: {:.1} %; \
          trusted bad at θ<20°: {}; replay {:.2} s (max {:.2})",
-        if coordinator_toml.is_some() { "without honest noise: " } else { "" },
+        match coordinator_toml {
+            Some(SINGLE_MODE) => "single mode: ",
+            Some(_) => "without honest noise: ",
+            None => "",
+        },
+        if walk_m_per_s > 0.0 { format!("talker walking at {walk_m_per_s} m/s: ") } else { String::new() },
         mean(|f| f.soundmap_p95_band),
         mean(|f| f.closest_p95_band),
         100.0 * mean(|f| f.trusted_inside_99),

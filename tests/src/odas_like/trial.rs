@@ -7,8 +7,9 @@
 //! robot `r1` stays near (1, 1); robot `r2` starts 0.6 m beside it (θ at the
 //! source ≈ 5°) and drives at 0.15 m/s around the room's front to the far
 //! side of the source (θ ≈ 90°), then stays. The talker sways ±0.2 m with a
-//! 20 s period. The seed moves r1 and the talker by up to ±0.3 m and draws the
-//! DoA noise.
+//! 20 s period, and with [`OdasTrialSpec::walk_m_per_s`] also walks back and
+//! forth along x (±1.5 m, 2 s pauses at the ends). The seed moves r1 and the
+//! talker by up to ±0.3 m and draws the DoA noise.
 
 use std::io::Write;
 use std::path::Path;
@@ -35,6 +36,10 @@ pub struct OdasTrialSpec {
     pub model: OdasLikeModel,
     /// Array preset of both robots.
     pub array: String,
+    /// Walking speed of the talker (m/s): 0 keeps it in place (swaying);
+    /// above 0 it walks back and forth along x, 1.5 m each side of its spot,
+    /// pausing 2 s at each end (and sways on top).
+    pub walk_m_per_s: f64,
 }
 
 impl Default for OdasTrialSpec {
@@ -44,6 +49,7 @@ impl Default for OdasTrialSpec {
             seed: 1,
             model: OdasLikeModel::default(),
             array: "16soundsusb-pioneer".into(),
+            walk_m_per_s: 0.0,
         }
     }
 }
@@ -76,6 +82,7 @@ const RATE_HZ: u32 = 16_000;
 struct Paths {
     r1: Point3<f64>,
     source: Point3<f64>,
+    walk_m_per_s: f64,
 }
 
 impl Paths {
@@ -99,7 +106,34 @@ impl Paths {
     }
 
     fn source(&self, t: f64) -> Point3<f64> {
-        self.source + Vector3::new(0.2 * (std::f64::consts::TAU * t / 20.0).sin(), 0.0, 0.0)
+        let sway = 0.2 * (std::f64::consts::TAU * t / 20.0).sin();
+        self.source + Vector3::new(sway + self.walk(t), 0.0, 0.0)
+    }
+
+    /// The walk's offset along x: from 0 to +1.5 m, pause, to −1.5 m, pause, back.
+    fn walk(&self, t: f64) -> f64 {
+        const HALF: f64 = 1.5;
+        const PAUSE_S: f64 = 2.0;
+        if self.walk_m_per_s <= 0.0 {
+            return 0.0;
+        }
+        let leg = 2.0 * HALF / self.walk_m_per_s;
+        let first = HALF / self.walk_m_per_s;
+        if t < first {
+            return self.walk_m_per_s * t;
+        }
+        // Then cycles of pause, leg down, pause, leg up.
+        let cycle = 2.0 * (PAUSE_S + leg);
+        let u = (t - first) % cycle;
+        if u < PAUSE_S {
+            HALF
+        } else if u < PAUSE_S + leg {
+            HALF - self.walk_m_per_s * (u - PAUSE_S)
+        } else if u < 2.0 * PAUSE_S + leg {
+            -HALF
+        } else {
+            -HALF + self.walk_m_per_s * (u - 2.0 * PAUSE_S - leg)
+        }
     }
 }
 
@@ -115,6 +149,7 @@ pub fn write_trial(dir: &Path, spec: &OdasTrialSpec) -> Result<OdasTrial, SimErr
     let paths = Paths {
         r1: Point3::new(1.0 + jitter(), 1.0 + jitter(), 0.0),
         source: Point3::new(3.5 + jitter(), 4.5 + jitter(), 1.3),
+        walk_m_per_s: spec.walk_m_per_s,
     };
     let room = Shoebox { size: Vector3::new(7.0, 6.0, 3.0) };
     let array = ArrayGeometry::load(&spec.array)?;
