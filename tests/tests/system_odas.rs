@@ -5,7 +5,8 @@
 //! closest-point method on the same DoAs.
 //!
 //! `cargo test -p soundmap-sim --test system_odas -- --nocapture` runs one
-//! 60 s trial; `-- --include-ignored` adds the sweep over seeds 1–5.
+//! 60 s trial; `-- --include-ignored` adds the sweeps over seeds 1–5 (a
+//! swaying talker, a walking one, and both with the single-mode tracker).
 
 use std::time::Instant;
 
@@ -132,6 +133,12 @@ fn odas_recording_replays_and_is_honest() {
     assert!(f.trusted > 0, "some estimates are trusted: {f:?}");
     assert_eq!(f.trusted_bad_low_theta, 0, "{f:?}");
     assert!(f.soundmap_p95_band.is_finite() && f.closest_p95_band.is_finite(), "{f:?}");
+    // The targets on this (swaying) talker: in-band p95 ≤ 0.3 m and
+    // at least 25 % better than closest point on the same DoAs (seed 1
+    // measured 0.214 m against 0.492 m).
+    assert!(f.soundmap_p95_band <= 0.3, "{f:?}");
+    assert!(f.soundmap_p95_band <= 0.75 * f.closest_p95_band, "{f:?}");
+    assert!(f.trusted_inside_99 >= 0.97, "{f:?}");
 }
 
 #[test]
