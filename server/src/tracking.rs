@@ -228,6 +228,7 @@ impl SourceTracker {
         let start = Snapshot {
             stamp,
             filter: ImmState::new(CvState::new(position, Vector3::zeros(), p)),
+            filter_stamp: stamp,
             confirmation: Confirmation::default(),
             last_update: None,
             last_nis: None,
@@ -352,7 +353,7 @@ impl SourceTracker {
         let track = self.track.as_ref().filter(|t| t.lost.is_none())?;
         let (before, _) = track.buffer.state_before(stamp)?;
         let predicted =
-            before.filter.predicted(stamp.seconds_since(before.stamp).max(0.0), &self.params.modes);
+            before.filter.predicted(stamp.seconds_since(before.filter_stamp).max(0.0), &self.params.modes);
         predicted.innovation(ray, &self.params.doa).ok().map(|i| i.nis)
     }
 
@@ -365,7 +366,11 @@ impl SourceTracker {
             return;
         };
         let (s, _) = track.buffer.latest();
-        let rms = s.filter.predicted(now.seconds_since(s.stamp).max(0.0), &modes).combined().position_rms_m();
+        let rms = s
+            .filter
+            .predicted(now.seconds_since(s.filter_stamp).max(0.0), &modes)
+            .combined()
+            .position_rms_m();
         let last = s.last_update.unwrap_or(track.buffer.start());
         let single_since =
             s.confirmation.single_run_start().unwrap_or(track.buffer.start()).max(track.buffer.start());
@@ -376,7 +381,7 @@ impl SourceTracker {
     pub fn estimate(&self) -> Option<TrackEstimate> {
         let track = self.track.as_ref()?;
         let (s, _) = track.buffer.latest();
-        Some(self.describe(track, s, s.stamp, s.filter.combined()))
+        Some(self.describe(track, s, s.stamp, self.filter_at(s, s.stamp)))
     }
 
     /// The estimate predicted to `stamp` without changing the track (a stamp
@@ -386,9 +391,14 @@ impl SourceTracker {
         let (s, _) = track.buffer.latest();
         let dt = stamp.seconds_since(s.stamp);
         if dt <= 0.0 {
-            return Some(self.describe(track, s, s.stamp, s.filter.combined()));
+            return Some(self.describe(track, s, s.stamp, self.filter_at(s, s.stamp)));
         }
-        Some(self.describe(track, s, stamp, s.filter.predicted(dt, &self.params.modes).combined()))
+        Some(self.describe(track, s, stamp, self.filter_at(s, stamp)))
+    }
+
+    /// The mixture of `s`'s filter predicted to `stamp` (not before its own stamp).
+    fn filter_at(&self, s: &Snapshot, stamp: Stamp) -> CvState {
+        s.filter.predicted(stamp.seconds_since(s.filter_stamp).max(0.0), &self.params.modes).combined()
     }
 
     fn describe(&self, track: &Track, s: &Snapshot, stamp: Stamp, filter: CvState) -> TrackEstimate {

@@ -114,9 +114,13 @@ async fn run(config: CoordinatorConfig, seed: u64) -> Run {
     out
 }
 
-/// The tracker tuned for a static talker, with the noise model the simulation uses.
+/// The tracker tuned for a static talker, with the noise model the simulation
+/// uses: the still mode does not diffuse (the source is fixed) and the moving
+/// mode barely accelerates.
 fn static_talker() -> CoordinatorConfig {
     let mut c = CoordinatorConfig::default();
+    c.tracking.still_diffusion_horizontal_m2_per_s = 1e-6;
+    c.tracking.still_diffusion_vertical_m2_per_s = 1e-7;
     c.tracking.accel_psd_horizontal_m2_per_s3 = 1e-4;
     c.tracking.accel_psd_vertical_m2_per_s3 = 1e-5;
     c.tracking.initial_velocity_sigma_horizontal_m_per_s = 0.1;

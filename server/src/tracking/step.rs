@@ -57,6 +57,10 @@ impl Eq for Observation {}
 pub(super) struct Snapshot {
     pub(super) stamp: Stamp,
     pub(super) filter: ImmState,
+    /// The stamp `filter` refers to: that of the last applied DoA (or the
+    /// start). A gated or unusable DoA leaves the filter as it was, so that
+    /// it changes nothing (the IMM's mixing at an extra stamp would).
+    pub(super) filter_stamp: Stamp,
     pub(super) confirmation: Confirmation,
     pub(super) last_update: Option<Stamp>,
     pub(super) last_nis: Option<f64>,
@@ -96,8 +100,8 @@ pub(super) fn step(
     obs: &Observation,
     p: &StepParams,
 ) -> (Snapshot, UpdateOutcome) {
-    let predicted = prev.filter.predicted(stamp.seconds_since(prev.stamp).max(0.0), &p.modes);
-    let mut next = Snapshot { stamp, filter: predicted, ..*prev };
+    let predicted = prev.filter.predicted(stamp.seconds_since(prev.filter_stamp).max(0.0), &p.modes);
+    let mut next = Snapshot { stamp, ..*prev };
     let (model, scale) = p.doa_for(&prev.learned, obs.robot);
     let inn = match predicted.innovation(&obs.ray, &model) {
         Ok(inn) => inn,
@@ -124,6 +128,7 @@ pub(super) fn step(
         return (next, UpdateOutcome::Unusable(Unusable::NonFinite));
     };
     next.filter = updated;
+    next.filter_stamp = stamp;
     let post = updated.combined();
     next.applied += 1;
     next.nis_sum += inn.nis;
