@@ -230,7 +230,6 @@ impl SourceTracker {
             filter: ImmState::new(CvState::new(position, Vector3::zeros(), p)),
             filter_stamp: stamp,
             confirmation: Confirmation::default(),
-            last_update: None,
             last_nis: None,
             nis_sum: 0.0,
             applied: 0,
@@ -352,9 +351,7 @@ impl SourceTracker {
     pub fn nis(&self, stamp: Stamp, ray: &Ray) -> Option<f64> {
         let track = self.track.as_ref().filter(|t| t.lost.is_none())?;
         let (before, _) = track.buffer.state_before(stamp)?;
-        let predicted =
-            before.filter.predicted(stamp.seconds_since(before.filter_stamp).max(0.0), &self.params.modes);
-        predicted.innovation(ray, &self.params.doa).ok().map(|i| i.nis)
+        before.filter_at(stamp, &self.params.modes).innovation(ray, &self.params.doa).ok().map(|i| i.nis)
     }
 
     /// Declares the track lost if it has been silent too long or its covariance
@@ -366,12 +363,9 @@ impl SourceTracker {
             return;
         };
         let (s, _) = track.buffer.latest();
-        let rms = s
-            .filter
-            .predicted(now.seconds_since(s.filter_stamp).max(0.0), &modes)
-            .combined()
-            .position_rms_m();
-        let last = s.last_update.unwrap_or(track.buffer.start());
+        let rms = s.filter_at(now, &modes).combined().position_rms_m();
+        // The last applied DoA's stamp, or the start while none was.
+        let last = s.filter_stamp;
         let single_since =
             s.confirmation.single_run_start().unwrap_or(track.buffer.start()).max(track.buffer.start());
         track.lost = check_loss(s.confirmation.is_confirmed(), now, last, single_since, rms, &rules);
@@ -381,7 +375,7 @@ impl SourceTracker {
     pub fn estimate(&self) -> Option<TrackEstimate> {
         let track = self.track.as_ref()?;
         let (s, _) = track.buffer.latest();
-        Some(self.describe(track, s, s.stamp, self.filter_at(s, s.stamp)))
+        Some(self.describe(track, s, s.stamp, s.filter_at(s.stamp, &self.params.modes).combined()))
     }
 
     /// The estimate predicted to `stamp` without changing the track (a stamp
@@ -391,14 +385,14 @@ impl SourceTracker {
         let (s, _) = track.buffer.latest();
         let dt = stamp.seconds_since(s.stamp);
         if dt <= 0.0 {
-            return Some(self.describe(track, s, s.stamp, self.filter_at(s, s.stamp)));
+            return Some(self.describe(
+                track,
+                s,
+                s.stamp,
+                s.filter_at(s.stamp, &self.params.modes).combined(),
+            ));
         }
-        Some(self.describe(track, s, stamp, self.filter_at(s, stamp)))
-    }
-
-    /// The mixture of `s`'s filter predicted to `stamp` (not before its own stamp).
-    fn filter_at(&self, s: &Snapshot, stamp: Stamp) -> CvState {
-        s.filter.predicted(stamp.seconds_since(s.filter_stamp).max(0.0), &self.params.modes).combined()
+        Some(self.describe(track, s, stamp, s.filter_at(stamp, &self.params.modes).combined()))
     }
 
     fn describe(&self, track: &Track, s: &Snapshot, stamp: Stamp, filter: CvState) -> TrackEstimate {
@@ -429,7 +423,7 @@ impl SourceTracker {
                 && geometry,
             last_nis: s.last_nis,
             mean_nis: (s.applied > 0).then(|| s.nis_sum / s.applied as f64),
-            last_update: s.last_update,
+            last_update: s.last_update(),
             counts: TrackCounts {
                 applied: s.applied,
                 gated: s.gated,

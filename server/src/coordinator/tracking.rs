@@ -1,7 +1,8 @@
 //! The source tracker inside the coordinator: every live robot's dominant DoA
-//! goes to the [`SourceTracker`], a track starts from a trusted triangulation (or one only too uncertain at a good geometry)
-//! when there is none (or it was lost), and each estimate carries the track's
-//! state beside the triangulation.
+//! goes to the [`SourceTracker`], a track starts from a trusted triangulation
+//! (or one only too uncertain at a good geometry) when there is none (or it
+//! was lost), and each estimate carries the track's state beside the
+//! triangulation.
 //!
 //! DoAs are queued as observations arrive and applied in stamp order once per
 //! batch ([`Tracking::flush`], called by the coordinator's `estimate` and

@@ -229,7 +229,8 @@ pub fn joseph_update(state: &CvState, innovation: &DoaInnovation) -> Option<CvSt
     next.is_finite().then_some(next)
 }
 
-fn symmetric(m: &Matrix6<f64>) -> Matrix6<f64> {
+/// (M + Mᵀ)/2: rounding keeps a covariance from drifting off symmetry.
+pub(super) fn symmetric(m: &Matrix6<f64>) -> Matrix6<f64> {
     (m + m.transpose()) * 0.5
 }
 

@@ -56,10 +56,10 @@
 //! a little of the still mode's lag. With
 //! `tracking.still_mode = false` the filter is the single CV filter exactly.
 
-use nalgebra::{Matrix3, Matrix6, Vector6};
+use nalgebra::{Matrix3, Matrix6, Vector3, Vector6};
 
 use super::filter::{
-    CvState, DoaInnovation, DoaNoiseModel, ProcessNoise, Unusable, doa_innovation, joseph_update,
+    CvState, DoaInnovation, DoaNoiseModel, ProcessNoise, Unusable, doa_innovation, joseph_update, symmetric,
 };
 use crate::ray::Ray;
 
@@ -100,7 +100,7 @@ impl Modes {
                 let mut mean = state.mean;
                 mean.fixed_rows_mut::<3>(3).fill(0.0);
                 let mut p = Matrix6::zeros();
-                let grow = Matrix3::from_diagonal(&nalgebra::Vector3::new(
+                let grow = Matrix3::from_diagonal(&Vector3::new(
                     d.horizontal_m2_per_s * dt_s,
                     d.horizontal_m2_per_s * dt_s,
                     d.vertical_m2_per_s * dt_s,
@@ -147,8 +147,7 @@ impl ImmState {
             let d = s.mean - mean;
             s.covariance + d * d.transpose()
         };
-        let covariance = spread(a) * wa + spread(b) * wb;
-        CvState { mean, covariance: (covariance + covariance.transpose()) * 0.5 }
+        CvState { mean, covariance: symmetric(&(spread(a) * wa + spread(b) * wb)) }
     }
 
     /// Mixed and predicted `dt_s` ahead (dt ≥ 0); the probabilities become the
@@ -176,7 +175,7 @@ impl ImmState {
         let mut next = *self;
         let mut log_weight = [0.0; 2];
         for j in 0..2 {
-            let inn: DoaInnovation = doa_innovation(&self.modes[j], ray, model).ok()?;
+            let inn = doa_innovation(&self.modes[j], ray, model).ok()?;
             next.modes[j] = joseph_update(&self.modes[j], &inn)?;
             let det = inn.covariance.determinant();
             log_weight[j] = self.probability[j].ln() - 0.5 * inn.nis - 0.5 * det.ln();

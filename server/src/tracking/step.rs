@@ -57,12 +57,12 @@ impl Eq for Observation {}
 pub(super) struct Snapshot {
     pub(super) stamp: Stamp,
     pub(super) filter: ImmState,
-    /// The stamp `filter` refers to: that of the last applied DoA (or the
-    /// start). A gated or unusable DoA leaves the filter as it was, so that
-    /// it changes nothing (the IMM's mixing at an extra stamp would).
+    /// The stamp `filter` refers to: that of the last applied DoA, or the
+    /// track's start while none was applied (see [`Snapshot::last_update`]). A
+    /// gated or unusable DoA leaves the filter as it was, so that it changes
+    /// nothing (the IMM's mixing at an extra stamp would).
     pub(super) filter_stamp: Stamp,
     pub(super) confirmation: Confirmation,
-    pub(super) last_update: Option<Stamp>,
     pub(super) last_nis: Option<f64>,
     pub(super) nis_sum: f64,
     pub(super) applied: u64,
@@ -70,6 +70,18 @@ pub(super) struct Snapshot {
     pub(super) unusable: u64,
     /// Learned noise scales, NIS window and robots' positions.
     pub(super) learned: Learned,
+}
+
+impl Snapshot {
+    /// The filter predicted (mixed) to `stamp`, not before its own stamp.
+    pub(super) fn filter_at(&self, stamp: Stamp, modes: &Modes) -> ImmState {
+        self.filter.predicted(stamp.seconds_since(self.filter_stamp).max(0.0), modes)
+    }
+
+    /// Stamp of the last applied DoA, if any.
+    pub(super) fn last_update(&self) -> Option<Stamp> {
+        (self.applied > 0).then_some(self.filter_stamp)
+    }
 }
 
 /// The numbers a DoA step needs.
@@ -100,7 +112,7 @@ pub(super) fn step(
     obs: &Observation,
     p: &StepParams,
 ) -> (Snapshot, UpdateOutcome) {
-    let predicted = prev.filter.predicted(stamp.seconds_since(prev.filter_stamp).max(0.0), &p.modes);
+    let predicted = prev.filter_at(stamp, &p.modes);
     let mut next = Snapshot { stamp, ..*prev };
     let (model, scale) = p.doa_for(&prev.learned, obs.robot);
     let inn = match predicted.innovation(&obs.ray, &model) {
@@ -132,7 +144,6 @@ pub(super) fn step(
     let post = updated.combined();
     next.applied += 1;
     next.nis_sum += inn.nis;
-    next.last_update = Some(stamp);
     next.confirmation.record(stamp, obs.robot, post.position_rms_m(), &p.rules);
     next.learned.learn(obs.robot, stamp, sample, &p.learning);
     next.learned.accepted(obs.robot, stamp, obs.ray.origin_in_map);
