@@ -147,6 +147,9 @@ pub enum RepositionReason {
     Improvement,
     /// The formation follows a moving source.
     FollowSource,
+    /// The robot is inside the keep-out of the source (or of its path just
+    /// ahead) and backs out.
+    KeepOut,
 }
 
 /// A goal for a robot's base.
@@ -532,6 +535,7 @@ impl RepositionReason {
             RepositionReason::GdopHigh => wire::RepositionReason::GdopHigh,
             RepositionReason::Improvement => wire::RepositionReason::Improvement,
             RepositionReason::FollowSource => wire::RepositionReason::FollowSource,
+            RepositionReason::KeepOut => wire::RepositionReason::KeepOut,
         }
     }
 
@@ -542,6 +546,7 @@ impl RepositionReason {
             Ok(wire::RepositionReason::GdopHigh) => Ok(RepositionReason::GdopHigh),
             Ok(wire::RepositionReason::Improvement) => Ok(RepositionReason::Improvement),
             Ok(wire::RepositionReason::FollowSource) => Ok(RepositionReason::FollowSource),
+            Ok(wire::RepositionReason::KeepOut) => Ok(RepositionReason::KeepOut),
             Ok(wire::RepositionReason::Unspecified) => Err(ValidationError::new(field, Problem::Missing)),
             Err(_) => Err(ValidationError::new(field, Problem::UnknownEnum(v))),
         }

@@ -26,6 +26,11 @@
 //!    before it becomes a [`Goal`]; the sampling search offers only spots that
 //!    keep it.
 //!
+//! A robot inside the keep-out is sent out of it first, whatever the
+//! re-tasking clock ([`escape`]): that cycle issues only those goals; and an
+//! ordinary cycle's goal that would leave a robot inside is replaced by the
+//! way out.
+//!
 //! Before any position exists, [`Planner::plan_from_bearings`] moves the
 //! robots from what they hear ([`start`]): spread across a heard bearing,
 //! approach along it, rescue deaf robots, explore when nobody hears.
@@ -39,6 +44,7 @@ pub mod bearings;
 pub mod cadence;
 pub mod config;
 mod cycle;
+mod escape;
 pub mod free_space;
 mod hysteresis;
 mod input;
@@ -149,6 +155,11 @@ impl Planner {
         if let Some(h) = check_input(&self.config, input) {
             return PlanOutcome::Hold(h);
         }
+        let escapes = self.escapes(input);
+        if !escapes.is_empty() {
+            self.cadence.retasked(now);
+            return PlanOutcome::Planned(escapes);
+        }
         if let Some(wait_s) = self.cadence.retask_wait_s(now) {
             return PlanOutcome::Hold(HoldReason::NotDue { wait_s });
         }
@@ -256,6 +267,7 @@ impl Planner {
             .collect();
         let predicted = assess(&after, &src);
         let goals = self.goals(&src, robots, &per_robot, &cycle, &predicted, reason);
+        let goals = self.keep_out_first(input, goals);
         if goals.is_empty() {
             if situation.busy {
                 // The goals being driven to are still this cycle's plan: confirm them
@@ -371,6 +383,123 @@ impl Planner {
     }
 
     /// Whether every active goal keeps range, free space and separation for the source at `centre`.
+    /// Goals out of the keep-out for the robots inside it whose active goal
+    /// (if any) does not already leave it ([`escape`]).
+    fn escapes(&self, input: &PlannerInput) -> Vec<Goal> {
+        let keep = self.keep_out(&input.source);
+        let inside: Vec<usize> = (0..input.robots.len())
+            .filter(|&i| {
+                let r = &input.robots[i];
+                let going_out = r.active_goal.is_some_and(|g| keep.clearance(&xy_of(&g)) >= keep.radius_m);
+                keep.clearance(&r.base_xy()) < keep.radius_m && !going_out
+            })
+            .collect();
+        self.escape_goals(input, &inside, &[])
+    }
+
+    /// The ordinary plan's `goals`, with those of robots inside the keep-out
+    /// that would not take them out of it replaced by the way out.
+    fn keep_out_first(&self, input: &PlannerInput, mut goals: Vec<Goal>) -> Vec<Goal> {
+        let keep = self.keep_out(&input.source);
+        let inside: Vec<usize> = goals
+            .iter()
+            .filter(|g| {
+                let r = &input.robots[g.robot];
+                keep.clearance(&r.base_xy()) < keep.radius_m
+                    && keep.clearance(&xy_of(&g.map_from_base)) < keep.radius_m
+            })
+            .map(|g| g.robot)
+            .collect();
+        if inside.is_empty() {
+            return goals;
+        }
+        let kept: Vec<Goal> = goals.iter().filter(|g| !inside.contains(&g.robot)).cloned().collect();
+        let mut out = self.escape_goals(input, &inside, &kept);
+        // A robot with no way out keeps the ordinary goal (no nearer the path).
+        goals.retain(|g| out.iter().all(|e| e.robot != g.robot));
+        out.extend(goals);
+        out.sort_by_key(|g| g.robot);
+        out
+    }
+
+    /// The keep-out around the source's path this cycle (`cycle::KeepOut`).
+    fn keep_out(&self, s: &SourceEstimate) -> cycle::KeepOut {
+        let ahead = s.position_in_map + s.velocity_in_map.unwrap_or_default() * self.config.source_lead_s;
+        escape::keep_out(&s.position_in_map, &ahead, self.config.min_range_m)
+    }
+
+    /// Goals out of the keep-out for the robots `inside`; the others end at
+    /// their goal in `planned`, else at their active goal, else where they are.
+    fn escape_goals(&self, input: &PlannerInput, inside: &[usize], planned: &[Goal]) -> Vec<Goal> {
+        if inside.is_empty() {
+            return Vec::new();
+        }
+        let cfg = &self.config;
+        let s = &input.source;
+        let robots = &input.robots;
+        let keep = self.keep_out(s);
+        let ahead = s.position_in_map + s.velocity_in_map.unwrap_or_default() * cfg.source_lead_s;
+        let want = escape::escape_clearance_m(
+            cfg.min_range_m,
+            cfg.keep_out_margin_m,
+            &s.covariance_m2.fixed_view::<2, 2>(0, 0).into_owned(),
+        );
+        let mut destination: Vec<Point2<f64>> =
+            robots.iter().map(|r| r.active_goal.map_or(r.base_xy(), |g| xy_of(&g))).collect();
+        for g in planned {
+            destination[g.robot] = xy_of(&g.map_from_base);
+        }
+        let mut spots = Vec::new();
+        for &i in inside {
+            let others: Vec<Point2<f64>> =
+                destination.iter().enumerate().filter(|&(j, _)| j != i).map(|(_, p)| *p).collect();
+            let p0 = robots[i].base_xy();
+            let outside_band_deg = |q: &Point2<f64>| {
+                let sensors: Vec<Sensor> = robots
+                    .iter()
+                    .enumerate()
+                    .map(|(j, r)| {
+                        let at = if j == i { *q } else { destination[j] };
+                        sensor_at(&at, &ahead, &r.base_from_array, r.sigma_rad)
+                    })
+                    .collect();
+                let theta = assess(&sensors, &ahead).theta_deg;
+                (cfg.theta_min_deg - theta).max(theta - cfg.theta_max_deg).max(0.0)
+            };
+            let free = &self.free;
+            let sep = cfg.min_separation_m;
+            if let Some(q) = escape::escape_spot(&keep, free, &p0, want, &others, sep, outside_band_deg) {
+                destination[i] = q;
+                spots.push((i, q, keep.clearance(&p0)));
+            }
+        }
+        let sensors: Vec<Sensor> = robots
+            .iter()
+            .zip(&destination)
+            .map(|(r, d)| sensor_at(d, &ahead, &r.base_from_array, r.sigma_rad))
+            .collect();
+        let predicted = assess(&sensors, &ahead);
+        spots
+            .into_iter()
+            .map(|(i, q, from)| Goal {
+                robot: i,
+                robot_id: robots[i].id.clone(),
+                map_from_base: pose::facing_pose(&q, &ahead),
+                look_at_in_map: ahead,
+                target_in_map: q,
+                predicted_theta_deg: predicted.theta_deg,
+                predicted_gdop: predicted.gdop,
+                predicted_rms_m: predicted.rms_m,
+                reason: RepositionReason::KeepOut,
+                used_fallback: false,
+                note: Some(format!(
+                    "{from:.2} m from the source's path (keep-out {:.2} m): backing out to {want:.2} m",
+                    cfg.min_range_m
+                )),
+            })
+            .collect()
+    }
+
     fn active_goals_valid(&self, centre: &Point2<f64>, robots: &[RobotState]) -> bool {
         let cfg = &self.config;
         let tol = 0.05;
@@ -390,6 +519,11 @@ impl Planner {
         });
         each && pairs
     }
+}
+
+/// The xy position of a pose (m).
+fn xy_of(p: &nalgebra::Isometry3<f64>) -> Point2<f64> {
+    Point2::new(p.translation.vector.x, p.translation.vector.y)
 }
 
 /// Why the input cannot be planned for, if it cannot.

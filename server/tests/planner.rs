@@ -456,6 +456,44 @@ fn busy_robots_keep_their_goals_and_replanning_is_rate_limited() {
     }
 }
 
+/// A walker comes up to a robot between re-taskings: that robot is sent out
+/// of the keep-out at once (not one step, not after the re-tasking clock),
+/// beside the walker's path rather than ahead on it, and nobody else moves.
+#[test]
+fn a_robot_inside_the_keep_out_backs_out_at_once() {
+    let cfg = room_config();
+    let mut planner = Planner::new(cfg.clone()).unwrap();
+    let (src, robots) = side_by_side();
+    planned(planner.plan(Stamp::ZERO, &input(src, robots.clone())));
+    // 0.3 s later the source, walking +x at 1 m/s, is 0.4 m from robot 0 (4.6, 0.4).
+    let walker = Point3::new(4.6, 0.0, 1.2);
+    let mut estimate = SourceEstimate::at(walker, 0.1);
+    estimate.velocity_in_map = Some(Vector3::new(1.0, 0.0, 0.0));
+    let robots = vec![robot(0, 4.6, 0.4), robot(1, 1.0, -3.0)];
+    let out = planner
+        .plan(Stamp::from_secs_f64(0.3), &PlannerInput { source: estimate.clone(), robots: robots.clone() });
+    let goals = planned(out);
+    assert_eq!(goals.len(), 1, "{goals:?}");
+    let g = &goals[0];
+    assert_eq!((g.robot, g.reason), (0, RepositionReason::KeepOut));
+    assert!(g.note.as_deref().is_some_and(|n| n.contains("keep-out")), "{g:?}");
+    // Clearance from the path (now → 1 s ahead), computed here from scratch.
+    let p = xy(&g.map_from_base);
+    let (a, b) = (Point2::new(4.6, 0.0), Point2::new(5.6, 0.0));
+    let t = ((p - a).dot(&(b - a)) / (b - a).norm_squared()).clamp(0.0, 1.0);
+    let clearance = (p - (a + (b - a) * t)).norm();
+    let sigma_h = 0.1 / 3f64.sqrt();
+    let want = cfg.min_range_m + cfg.keep_out_margin_m.max(2.0 * sigma_h);
+    assert!(clearance >= want - 1e-9, "clearance {clearance:.3} < {want:.3} at {p}");
+    assert!(p.y > 0.4, "robot 0 should step aside, away from the walker: {p}");
+    assert!(inside(&cfg.free_space.room, &p));
+    // On its way out it is left to drive; the ordinary plan waits for the clock.
+    let mut busy = robots.clone();
+    busy[0].active_goal = Some(g.map_from_base);
+    let out = planner.plan(Stamp::from_secs_f64(0.5), &PlannerInput { source: estimate, robots: busy });
+    assert!(matches!(out, PlanOutcome::Hold(HoldReason::NotDue { .. })), "{out:?}");
+}
+
 #[test]
 fn planning_is_deterministic() {
     let (src, robots) = side_by_side();
@@ -500,6 +538,10 @@ struct RunStats {
     flips: Vec<usize>,
     /// Fraction of the time (after the first 10 s) with θ in 40–140°.
     in_band: f64,
+    /// Goals that backed a robot out of the keep-out.
+    escapes: usize,
+    /// Time any robot spent within the keep-out radius of the true source (s).
+    inside_s: f64,
 }
 
 fn wrap_deg(a: f64) -> f64 {
@@ -519,6 +561,7 @@ fn closed_loop(cfg: &PlannerConfig, seed: u64) -> RunStats {
     let mut changes = vec![0; 2];
     let mut flips = vec![0; 2];
     let (mut good, mut counted) = (0, 0);
+    let (mut escapes, mut inside_s) = (0, 0.0);
     let steps = (duration / dt) as usize;
     for k in 0..steps {
         let t = k as f64 * dt;
@@ -560,6 +603,13 @@ fn closed_loop(cfg: &PlannerConfig, seed: u64) -> RunStats {
             }
             if let PlanOutcome::Planned(goals) = out {
                 for g in goals {
+                    robots[g.robot].active_goal = Some(g.map_from_base);
+                    // Backing out of the walker's way is safety, not placement:
+                    // counted apart from the placement's changes and flips.
+                    if g.reason == RepositionReason::KeepOut {
+                        escapes += 1;
+                        continue;
+                    }
                     let p = xy(&g.map_from_base);
                     let t = g.target_in_map;
                     let bearing = (t.y - g.look_at_in_map.y).atan2(t.x - g.look_at_in_map.x).to_degrees();
@@ -577,7 +627,6 @@ fn closed_loop(cfg: &PlannerConfig, seed: u64) -> RunStats {
                     }
                     last_goal[g.robot] = Some(p);
                     last_bearing[g.robot] = Some(bearing);
-                    robots[g.robot].active_goal = Some(g.map_from_base);
                 }
             }
         }
@@ -596,6 +645,10 @@ fn closed_loop(cfg: &PlannerConfig, seed: u64) -> RunStats {
                 }
             }
         }
+        let path = |r: &RobotState| (xy(&r.map_from_base) - Point2::new(truth.x, truth.y)).norm();
+        if robots.iter().any(|r| path(r) < cfg.min_range_m) {
+            inside_s += dt;
+        }
         if t >= 10.0 {
             counted += 1;
             if (40.0..=140.0).contains(&geometry(&truth, &robots).theta_deg) {
@@ -603,7 +656,7 @@ fn closed_loop(cfg: &PlannerConfig, seed: u64) -> RunStats {
             }
         }
     }
-    RunStats { changes, flips, in_band: good as f64 / counted as f64 }
+    RunStats { changes, flips, in_band: good as f64 / counted as f64, escapes, inside_s }
 }
 
 fn loop_config() -> PlannerConfig {
@@ -632,6 +685,9 @@ fn moving_source_does_not_make_goals_flip_flop() {
         eprintln!("seed {seed}: hysteresis on {on:?}\n        hysteresis off {off:?}");
         assert!(on.flips.iter().all(|&f| f <= 1), "seed {seed}: flip-flops {on:?}");
         assert!(on.in_band >= 0.95, "seed {seed}: θ in band only {:.0} % of the time", on.in_band * 100.0);
+        // The walker passes within a metre of the robots now and then: they step
+        // out of its way (8–16 times a minute here), and are seldom inside.
+        assert!(on.escapes <= 20 && on.inside_s <= 1.0, "seed {seed}: {on:?}");
         // At most one re-tasking per 1.5 s on average although the source never stops.
         assert!(on.changes.iter().all(|&c| c <= 40), "seed {seed}: {on:?}");
         // The measures bite: without hysteresis the goals change far more often and flip.

@@ -68,7 +68,18 @@ fn unsafe_goals(scenario: &Scenario, record: &RunRecord) -> Vec<String> {
             let outside = !(x0..=x0 + w).contains(&x) || !(y0..=y0 + d).contains(&y);
             let in_obstacle = room.obstacles.iter().any(|p| point_in_polygon(p, x, y));
             if outside || in_obstacle || range < KEEP_OUT_M {
-                bad.push(format!("{} at {t:.1} s: goal ({x:.2}, {y:.2}), source {range:.2} m away", path.id));
+                let robot = path.samples.iter().min_by(|a, b| (a.0 - t).abs().total_cmp(&(b.0 - t).abs()));
+                let robot_range =
+                    robot.map_or(f64::NAN, |r| ((truth.x - r.1).powi(2) + (truth.y - r.2).powi(2)).sqrt());
+                let why = record
+                    .commands
+                    .iter()
+                    .find(|c| c.1 == path.id && (c.0 - t).abs() < 0.05)
+                    .map_or("", |c| c.2.split(':').next().unwrap_or(""));
+                bad.push(format!(
+                    "{} at {t:.1} s: goal ({x:.2}, {y:.2}), source {range:.2} m away (robot {robot_range:.2} m; {why})",
+                    path.id
+                ));
             }
         }
     }
@@ -167,6 +178,11 @@ fn sweep_over_seeds() {
                 f.unsafe_goals.len(),
                 f.unsafe_start_goals.len()
             );
+            if std::env::var_os("SOUNDMAP_SWEEP_VERBOSE").is_some() {
+                for g in &f.unsafe_goals {
+                    println!("    unsafe: {g}");
+                }
+            }
             let start_targets = *name != "active-moving" && *name != "fast-walker";
             let ok = f.unsafe_goals.is_empty()
                 && f.in_band_after.is_some_and(|r| r >= 0.95)

@@ -107,7 +107,11 @@ fn run_with(seed: u64, coordinator_toml: Option<&str>, walk_m_per_s: f64) -> Fig
     let t0 = Instant::now();
     let record = replay(&args).unwrap();
     let f = figures(&record, &trial, t0.elapsed().as_secs_f64());
-    let _ = std::fs::remove_dir_all(&dir);
+    if std::env::var_os("SOUNDMAP_KEEP_RUNS").is_some() {
+        println!("kept {}", dir.display());
+    } else {
+        let _ = std::fs::remove_dir_all(&dir);
+    }
     println!(
         "seed {seed}: in-band p95 soundmap {:.3} m vs closest point {:.3} m ({:+.0} %); median {:.3} vs {:.3} m; \
          {} estimates, {} trusted, {} trusted at θ<20° with error>0.5 m, {:.1} % of trusted inside their 99 % ellipsoid; \

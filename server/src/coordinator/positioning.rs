@@ -275,6 +275,7 @@ fn reason_text(r: RepositionReason) -> &'static str {
         RepositionReason::GdopHigh => "GDOP high",
         RepositionReason::Improvement => "better geometry",
         RepositionReason::FollowSource => "following the source",
+        RepositionReason::KeepOut => "inside the keep-out",
     }
 }
 

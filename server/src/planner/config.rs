@@ -52,6 +52,10 @@ pub struct PlannerConfig {
     pub min_range_m: f64,
     /// Largest range from the source, r_max (m). Default 5.0.
     pub max_range_m: f64,
+    /// A robot that finds itself inside the keep-out (a walker came up to it)
+    /// is sent out to r_min plus the larger of this and twice the estimate's
+    /// horizontal 1-σ, at once (`planner::escape`). Default 0.3 (m).
+    pub keep_out_margin_m: f64,
     /// Range of the ideal spots (m), in [r_min, r_max]; information grows as 1/r². Default 2.0.
     pub preferred_range_m: f64,
     /// Smallest distance between two robots' goals (m). Default 0.8.
@@ -124,6 +128,7 @@ impl Default for PlannerConfig {
             max_gdop: 2.5,
             min_range_m: 1.0,
             max_range_m: 5.0,
+            keep_out_margin_m: 0.3,
             preferred_range_m: 2.0,
             min_separation_m: 0.8,
             max_step_m: 1.0,
@@ -201,6 +206,7 @@ impl PlannerConfig {
         }
         let non_negative = [
             ("min_separation_m", self.min_separation_m),
+            ("keep_out_margin_m", self.keep_out_margin_m),
             ("robot_radius_m", self.robot_radius_m),
             ("clearance_m", self.clearance_m),
             ("improvement_threshold", self.improvement_threshold),
