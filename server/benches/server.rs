@@ -249,7 +249,7 @@ fn bench_planner(quick: bool) {
             // Clustered 4.6–5.5 m from the source: θ out of band, every robot must move.
             let robots =
                 (0..n).map(|k| planner_robot(k, 4.6 + 0.9 * (k / 4) as f64, -0.4 + 0.8 * (k % 4) as f64));
-            let input = PlannerInput { source: source.clone(), robots: robots.collect() };
+            let input = PlannerInput { source: source.clone(), robots: robots.collect(), others: vec![] };
             let mut planner = Planner::new(cfg.clone()).expect("valid config");
             let outcome = match planner.plan(Stamp::ZERO, &input) {
                 PlanOutcome::Planned(goals) => {
@@ -275,7 +275,7 @@ fn bench_planner(quick: bool) {
             let a = k as f64 * std::f64::consts::PI / n as f64;
             planner_robot(k, 2.0 * a.cos(), 2.0 * a.sin())
         });
-        let input = PlannerInput { source: source.clone(), robots: robots.collect() };
+        let input = PlannerInput { source: source.clone(), robots: robots.collect(), others: vec![] };
         let mut planner = Planner::new(convex.clone()).expect("valid config");
         let outcome = planner.plan(Stamp::ZERO, &input);
         assert!(matches!(outcome, PlanOutcome::Hold(_)), "{outcome:?}");
@@ -284,6 +284,30 @@ fn bench_planner(quick: bool) {
             black_box(planner.plan(Stamp::ZERO, black_box(&input)));
         });
         println!("| {n} | hold (optimal spread at 2 m) | {:.3} | hold |", per / 1e6);
+    }
+    // A walker (1 m/s toward +y) comes up to the formation: every robot of the
+    // spread at 2 m but the first stands inside its keep-out or its path's,
+    // plus a second source at the far side whose keep-out they must also keep.
+    for n in [2usize, 3, 8] {
+        let robots = (0..n).map(|k| {
+            let a = k as f64 * std::f64::consts::PI / n as f64;
+            let r = if k == 0 { 2.0 } else { 0.6 };
+            planner_robot(k, r * a.cos(), r * a.sin())
+        });
+        let mut walker = source.clone();
+        walker.velocity_in_map = Some(Vector3::new(0.0, 1.0, 0.0));
+        let others = vec![SourceEstimate::at(Point3::new(-3.0, -2.0, 1.0), 0.1)];
+        let input = PlannerInput { source: walker, robots: robots.collect(), others };
+        let mut planner = Planner::new(convex.clone()).expect("valid config");
+        let outcome = match planner.plan(Stamp::ZERO, &input) {
+            PlanOutcome::Planned(goals) => format!("{} goals out of the keep-out", goals.len()),
+            other => panic!("keep-out, {n} robots: {other:?}"),
+        };
+        let per = time_per_call(3, iters, |_| {
+            planner.reset();
+            black_box(planner.plan(Stamp::ZERO, black_box(&input)));
+        });
+        println!("| {n} | backing out of the keep-out (two sources) | {:.3} | {outcome} |", per / 1e6);
     }
     bench_planner_from_bearings(&convex, iters);
     println!("targets: < 2 ms for 2 robots, < 20 ms for 8\n");

@@ -383,52 +383,104 @@ impl Planner {
     }
 
     /// Whether every active goal keeps range, free space and separation for the source at `centre`.
-    /// Goals out of the keep-out for the robots inside it whose active goal
-    /// (if any) does not already leave it ([`escape`]).
+    /// Goals out of the keep-outs for the robots inside one whose active goal
+    /// (if any) does not already leave them ([`escape`]).
     fn escapes(&self, input: &PlannerInput) -> Vec<Goal> {
-        let keep = self.keep_out(&input.source);
+        let keeps = self.keep_outs(input);
         let inside: Vec<usize> = (0..input.robots.len())
             .filter(|&i| {
                 let r = &input.robots[i];
-                let going_out = r.active_goal.is_some_and(|g| keep.clearance(&xy_of(&g)) >= keep.radius_m);
-                keep.clearance(&r.base_xy()) < keep.radius_m && !going_out
+                let going_out = r.active_goal.is_some_and(|g| escape::clear_of(&keeps, &xy_of(&g), 0.0));
+                !escape::clear_of(&keeps, &r.base_xy(), 0.0) && !going_out
             })
             .collect();
         self.escape_goals(input, &inside, &[])
     }
 
-    /// The ordinary plan's `goals`, with those of robots inside the keep-out
-    /// that would not take them out of it replaced by the way out.
+    /// The ordinary plan's `goals`, with those of robots inside a keep-out
+    /// that would not take them out of it replaced by the way out, and those
+    /// that would take a robot into another source's keep-out moved to the
+    /// nearest spot clear of every keep-out.
     fn keep_out_first(&self, input: &PlannerInput, mut goals: Vec<Goal>) -> Vec<Goal> {
-        let keep = self.keep_out(&input.source);
+        let keeps = self.keep_outs(input);
         let inside: Vec<usize> = goals
             .iter()
             .filter(|g| {
                 let r = &input.robots[g.robot];
-                keep.clearance(&r.base_xy()) < keep.radius_m
-                    && keep.clearance(&xy_of(&g.map_from_base)) < keep.radius_m
+                !escape::clear_of(&keeps, &r.base_xy(), 0.0)
+                    && !escape::clear_of(&keeps, &xy_of(&g.map_from_base), 0.0)
             })
             .map(|g| g.robot)
             .collect();
-        if inside.is_empty() {
-            return goals;
+        if !inside.is_empty() {
+            let kept: Vec<Goal> = goals.iter().filter(|g| !inside.contains(&g.robot)).cloned().collect();
+            let mut out = self.escape_goals(input, &inside, &kept);
+            // A robot with no way out keeps the ordinary goal (no nearer the path).
+            goals.retain(|g| out.iter().all(|e| e.robot != g.robot));
+            out.extend(goals);
+            out.sort_by_key(|g| g.robot);
+            goals = out;
         }
-        let kept: Vec<Goal> = goals.iter().filter(|g| !inside.contains(&g.robot)).cloned().collect();
-        let mut out = self.escape_goals(input, &inside, &kept);
-        // A robot with no way out keeps the ordinary goal (no nearer the path).
-        goals.retain(|g| out.iter().all(|e| e.robot != g.robot));
-        out.extend(goals);
-        out.sort_by_key(|g| g.robot);
-        out
+        // Ordinary goals keep the served source's keep-out by construction, not
+        // the others'.
+        let others = &keeps[1..];
+        let mut dropped = Vec::new();
+        for k in 0..goals.len() {
+            let g = &goals[k];
+            let q0 = xy_of(&g.map_from_base);
+            if g.reason == RepositionReason::KeepOut || escape::clear_of(others, &q0, 0.0) {
+                continue;
+            }
+            let rest: Vec<Point2<f64>> = goals
+                .iter()
+                .filter(|o| o.robot != g.robot)
+                .map(|o| xy_of(&o.map_from_base))
+                .chain(
+                    input
+                        .robots
+                        .iter()
+                        .enumerate()
+                        .filter(|(j, _)| *j != g.robot && goals.iter().all(|o| o.robot != *j))
+                        .map(|(_, r)| r.active_goal.map_or(r.base_xy(), |a| xy_of(&a))),
+                )
+                .collect();
+            let cfg = &self.config;
+            let spot = escape::escape_spot(&keeps, &self.free, &q0, &rest, cfg.min_separation_m, |_| 0.0);
+            let g = &mut goals[k];
+            match spot {
+                Some(q) => {
+                    g.map_from_base = pose::facing_pose(&q, &g.look_at_in_map);
+                    let note = format!("moved to ({:.2}, {:.2}), out of another source's keep-out", q.x, q.y);
+                    g.note = Some(g.note.take().map_or(note.clone(), |n| format!("{n}; {note}")));
+                }
+                None => dropped.push(g.robot),
+            }
+        }
+        goals.retain(|g| !dropped.contains(&g.robot));
+        goals
     }
 
-    /// The keep-out around the source's path this cycle (`cycle::KeepOut`).
-    fn keep_out(&self, s: &SourceEstimate) -> cycle::KeepOut {
-        let ahead = s.position_in_map + s.velocity_in_map.unwrap_or_default() * self.config.source_lead_s;
-        escape::keep_out(&s.position_in_map, &ahead, self.config.min_range_m)
+    /// The keep-outs this cycle: the served source's first, then the others',
+    /// each around its path over `source_lead_s` (`cycle::KeepOut`), with the
+    /// clearance a robot backing out is sent to ([`escape::escape_clearance_m`]).
+    fn keep_outs(&self, input: &PlannerInput) -> Vec<(cycle::KeepOut, f64)> {
+        let cfg = &self.config;
+        std::iter::once(&input.source)
+            .chain(&input.others)
+            .map(|s| {
+                let ahead = s.position_in_map + s.velocity_in_map.unwrap_or_default() * cfg.source_lead_s;
+                let keep = escape::keep_out(&s.position_in_map, &ahead, cfg.min_range_m);
+                let want = escape::escape_clearance_m(
+                    cfg.min_range_m,
+                    cfg.keep_out_margin_m,
+                    &s.covariance_m2.fixed_view::<2, 2>(0, 0).into_owned(),
+                );
+                (keep, want)
+            })
+            .collect()
     }
 
-    /// Goals out of the keep-out for the robots `inside`; the others end at
+    /// Goals out of the keep-outs for the robots `inside`; the others end at
     /// their goal in `planned`, else at their active goal, else where they are.
     fn escape_goals(&self, input: &PlannerInput, inside: &[usize], planned: &[Goal]) -> Vec<Goal> {
         if inside.is_empty() {
@@ -437,13 +489,8 @@ impl Planner {
         let cfg = &self.config;
         let s = &input.source;
         let robots = &input.robots;
-        let keep = self.keep_out(s);
+        let keeps = self.keep_outs(input);
         let ahead = s.position_in_map + s.velocity_in_map.unwrap_or_default() * cfg.source_lead_s;
-        let want = escape::escape_clearance_m(
-            cfg.min_range_m,
-            cfg.keep_out_margin_m,
-            &s.covariance_m2.fixed_view::<2, 2>(0, 0).into_owned(),
-        );
         let mut destination: Vec<Point2<f64>> =
             robots.iter().map(|r| r.active_goal.map_or(r.base_xy(), |g| xy_of(&g))).collect();
         for g in planned {
@@ -466,11 +513,17 @@ impl Planner {
                 let theta = assess(&sensors, &ahead).theta_deg;
                 (cfg.theta_min_deg - theta).max(theta - cfg.theta_max_deg).max(0.0)
             };
-            let free = &self.free;
             let sep = cfg.min_separation_m;
-            if let Some(q) = escape::escape_spot(&keep, free, &p0, want, &others, sep, outside_band_deg) {
+            if let Some(q) = escape::escape_spot(&keeps, &self.free, &p0, &others, sep, outside_band_deg) {
                 destination[i] = q;
-                spots.push((i, q, keep.clearance(&p0)));
+                // The keep-out it was deepest in.
+                let (k, from) = keeps
+                    .iter()
+                    .enumerate()
+                    .map(|(k, (keep, _))| (k, keep.clearance(&p0)))
+                    .min_by(|a, b| a.1.total_cmp(&b.1))
+                    .unwrap_or((0, 0.0));
+                spots.push((i, q, k, from));
             }
         }
         let sensors: Vec<Sensor> = robots
@@ -481,7 +534,7 @@ impl Planner {
         let predicted = assess(&sensors, &ahead);
         spots
             .into_iter()
-            .map(|(i, q, from)| Goal {
+            .map(|(i, q, k, from)| Goal {
                 robot: i,
                 robot_id: robots[i].id.clone(),
                 map_from_base: pose::facing_pose(&q, &ahead),
@@ -493,8 +546,10 @@ impl Planner {
                 reason: RepositionReason::KeepOut,
                 used_fallback: false,
                 note: Some(format!(
-                    "{from:.2} m from the source's path (keep-out {:.2} m): backing out to {want:.2} m",
-                    cfg.min_range_m
+                    "{from:.2} m from {} path (keep-out {:.2} m): backing out to {:.2} m",
+                    if k == 0 { "the source's" } else { "another source's" },
+                    cfg.min_range_m,
+                    keeps[k].1
                 )),
             })
             .collect()
@@ -533,11 +588,16 @@ fn check_input(cfg: &PlannerConfig, input: &PlannerInput) -> Option<HoldReason> 
         return Some(HoldReason::TooFewRobots { count: input.robots.len() });
     }
     let s = &input.source;
-    if !(s.position_in_map.coords.iter().all(|v| v.is_finite())
-        && s.covariance_m2.iter().all(|v| v.is_finite())
-        && s.velocity_in_map.is_none_or(|v| v.iter().all(|x| x.is_finite())))
-    {
+    let finite = |s: &SourceEstimate| {
+        s.position_in_map.coords.iter().all(|v| v.is_finite())
+            && s.covariance_m2.iter().all(|v| v.is_finite())
+            && s.velocity_in_map.is_none_or(|v| v.iter().all(|x| x.is_finite()))
+    };
+    if !finite(s) {
         return invalid("source estimate has a non-finite number".into());
+    }
+    if let Some(k) = input.others.iter().position(|o| !finite(o)) {
+        return invalid(format!("other source {k} has a non-finite number"));
     }
     for (i, r) in input.robots.iter().enumerate() {
         if !r.is_valid() {

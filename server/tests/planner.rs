@@ -45,7 +45,7 @@ fn room_config() -> PlannerConfig {
 }
 
 fn input(source: Point3<f64>, robots: Vec<RobotState>) -> PlannerInput {
-    PlannerInput { source: SourceEstimate::at(source, 0.1), robots }
+    PlannerInput { source: SourceEstimate::at(source, 0.1), robots, others: vec![] }
 }
 
 fn xy(p: &Isometry3<f64>) -> Point2<f64> {
@@ -470,8 +470,10 @@ fn a_robot_inside_the_keep_out_backs_out_at_once() {
     let mut estimate = SourceEstimate::at(walker, 0.1);
     estimate.velocity_in_map = Some(Vector3::new(1.0, 0.0, 0.0));
     let robots = vec![robot(0, 4.6, 0.4), robot(1, 1.0, -3.0)];
-    let out = planner
-        .plan(Stamp::from_secs_f64(0.3), &PlannerInput { source: estimate.clone(), robots: robots.clone() });
+    let out = planner.plan(
+        Stamp::from_secs_f64(0.3),
+        &PlannerInput { source: estimate.clone(), robots: robots.clone(), others: vec![] },
+    );
     let goals = planned(out);
     assert_eq!(goals.len(), 1, "{goals:?}");
     let g = &goals[0];
@@ -490,8 +492,56 @@ fn a_robot_inside_the_keep_out_backs_out_at_once() {
     // On its way out it is left to drive; the ordinary plan waits for the clock.
     let mut busy = robots.clone();
     busy[0].active_goal = Some(g.map_from_base);
-    let out = planner.plan(Stamp::from_secs_f64(0.5), &PlannerInput { source: estimate, robots: busy });
+    let out = planner
+        .plan(Stamp::from_secs_f64(0.5), &PlannerInput { source: estimate, robots: busy, others: vec![] });
     assert!(matches!(out, PlanOutcome::Hold(HoldReason::NotDue { .. })), "{out:?}");
+}
+
+/// With several sources the planner serves one, but no goal goes into the
+/// keep-out of another, and a robot standing in one backs out.
+#[test]
+fn other_sources_keep_their_keep_outs() {
+    let cfg = room_config();
+    let (src, robots) = side_by_side();
+    let dist = |p: Point2<f64>, q: Point3<f64>| (p - Point2::new(q.x, q.y)).norm();
+    // Where the pair is sent for the served source alone...
+    let alone = planned(Planner::new(cfg.clone()).unwrap().plan(Stamp::ZERO, &input(src, robots.clone())));
+    // ... a second source (a fan) sits 0.6 m beyond robot 0's goal, more than
+    // the keep-out radius from the robot itself.
+    let fan = {
+        let (p0, p) = (xy(&robots[0].map_from_base), xy(&alone[0].map_from_base));
+        let f = p + (p - p0).normalize() * 0.6;
+        assert!((f - p0).norm() > cfg.min_range_m);
+        Point3::new(f.x, f.y, 0.5)
+    };
+    let with_fan = PlannerInput { others: vec![SourceEstimate::at(fan, 0.1)], ..input(src, robots.clone()) };
+    let goals = planned(Planner::new(cfg.clone()).unwrap().plan(Stamp::ZERO, &with_fan));
+    for g in &goals {
+        let p = xy(&g.map_from_base);
+        assert!(
+            dist(p, fan) >= cfg.min_range_m - 1e-6,
+            "robot {} sent {:.2} m from the fan",
+            g.robot,
+            dist(p, fan)
+        );
+    }
+    let moved = goals.iter().find(|g| g.robot == 0).expect("robot 0 still has a goal");
+    assert!(moved.note.as_deref().is_some_and(|n| n.contains("another source's keep-out")), "{moved:?}");
+    // A robot standing 0.4 m from the fan backs out of its keep-out.
+    let fan = Point3::new(5.4, 0.4, 0.5);
+    let near_fan = PlannerInput { others: vec![SourceEstimate::at(fan, 0.1)], ..input(src, robots.clone()) };
+    let goals = planned(Planner::new(cfg.clone()).unwrap().plan(Stamp::ZERO, &near_fan));
+    let g = goals.iter().find(|g| g.robot == 0).unwrap();
+    assert_eq!(g.reason, RepositionReason::KeepOut, "{goals:?}");
+    assert!(g.note.as_deref().is_some_and(|n| n.contains("another source's")), "{g:?}");
+    assert!(dist(xy(&g.map_from_base), fan) >= cfg.min_range_m + cfg.keep_out_margin_m - 1e-6);
+    // A non-finite other source is refused like a non-finite source.
+    let bad = PlannerInput {
+        others: vec![SourceEstimate::at(Point3::new(f64::NAN, 0.0, 0.0), 0.1)],
+        ..input(src, robots)
+    };
+    let out = Planner::new(cfg).unwrap().plan(Stamp::ZERO, &bad);
+    assert!(matches!(out, PlanOutcome::Hold(HoldReason::InvalidInput { .. })), "{out:?}");
 }
 
 #[test]
@@ -577,7 +627,10 @@ fn closed_loop(cfg: &PlannerConfig, seed: u64) -> RunStats {
                     velocity + Vector3::new(noise.sample(&mut rng), noise.sample(&mut rng), 0.0),
                 ),
             };
-            let out = planner.plan(Stamp::from_secs_f64(t), &PlannerInput { source, robots: robots.clone() });
+            let out = planner.plan(
+                Stamp::from_secs_f64(t),
+                &PlannerInput { source, robots: robots.clone(), others: vec![] },
+            );
             if std::env::var("PLANNER_TRACE").is_ok() {
                 let q = geometry(&truth, &robots);
                 let brief = match &out {

@@ -81,6 +81,25 @@ fn run_and_check(name: &str, seed: Option<u64>, need_estimates: bool) -> Summary
         let k = row.truth_source.expect("every row is scored against a true source");
         assert!(k < scenario.sources.len());
     }
+    // Goals issued within the planner's default keep-out (1 m) of a source
+    // that was playing then.
+    let mut near = Vec::new();
+    for path in &record.robots {
+        for &(t, x, y) in &path.goals {
+            for (k, src) in scenario.sources.iter().enumerate() {
+                let on = src.active_intervals().iter().any(|&(a, b)| (a..b).contains(&t));
+                let p = src.position_at(t);
+                let d = ((p.x - x).powi(2) + (p.y - y).powi(2)).sqrt();
+                if on && d < 1.0 {
+                    near.push(format!("{} at {t:.1} s: {d:.2} m from source {k}", path.id));
+                }
+            }
+        }
+    }
+    let goals: usize = record.robots.iter().map(|p| p.goals.len()).sum();
+    if goals > 0 {
+        println!("{name}: {goals} goals, {} within 1 m of a playing source {near:?}", near.len());
+    }
     let dir = temp_dir(name);
     let summary = write_reports(&record, &dir).unwrap();
     let json: serde_json::Value =

@@ -459,7 +459,7 @@ impl Coordinator {
         self.counters.estimates += 1;
         self.last_estimate = Some(estimate.clone());
         if self.positioning.due(now) {
-            self.reposition(now, &estimate);
+            self.reposition(now, &estimate, &[]);
         }
         Some(estimate)
     }
@@ -509,7 +509,9 @@ impl Coordinator {
         {
             self.serving = Some(format!("for source {} ({why})", served.source_id));
             let served = served.clone();
-            self.reposition(now, &served);
+            let others: Vec<Estimate> =
+                estimates.iter().filter(|e| e.source_id != served.source_id).cloned().collect();
+            self.reposition(now, &served, &others);
             self.serving = None;
         } else if estimates.is_empty() && self.positioning.due(now) {
             self.reposition_without_estimate(now);

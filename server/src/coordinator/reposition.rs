@@ -27,6 +27,7 @@ use super::positioning::{PositioningSettings, PositioningUpdate};
 use super::{Coordinator, Estimate, Liveness};
 use crate::error::ServerError;
 use crate::planner::{Heard, PlanOutcome, PlannerInput, RobotState, StartRobot};
+use crate::tracking::TrackState;
 
 /// Planning from bearings takes over when the latest usable estimate is older than this (s).
 pub const BEARINGS_AFTER_S: f64 = 2.0;
@@ -36,8 +37,10 @@ pub const HEARD_WITHIN_S: f64 = 1.0;
 const HINT_WITHIN_S: f64 = 3.0;
 
 impl Coordinator {
-    /// Runs one planning cycle for `estimate` at `now` (see the module docs).
-    pub(super) fn reposition(&mut self, now: Stamp, estimate: &Estimate) {
+    /// Runs one planning cycle for `estimate` at `now` (see the module docs);
+    /// `others` are the batch's other estimates, whose confirmed sources every
+    /// goal keeps out of.
+    pub(super) fn reposition(&mut self, now: Stamp, estimate: &Estimate, others: &[Estimate]) {
         self.positioning.estimate_seen();
         let source = match estimate.planning_source(&self.config.triangulation) {
             Ok(s) => s,
@@ -62,7 +65,12 @@ impl Coordinator {
                 })
             })
             .collect();
-        let input = PlannerInput { source, robots };
+        let others = others
+            .iter()
+            .filter(|e| e.filtered.as_ref().is_some_and(|f| f.state == TrackState::Confirmed))
+            .filter_map(|e| e.planning_source(&self.config.triangulation).ok())
+            .collect();
+        let input = PlannerInput { source, robots, others };
         let PlanOutcome::Planned(goals) = self.positioning.plan(now, &input) else { return };
         let mut skipped = Vec::new();
         for goal in &goals {

@@ -22,6 +22,14 @@
 //! it is free, no nearer than `min_separation_m` to the other robots (waived
 //! when nothing else is free), and the straight drive there never comes nearer
 //! the path than the robot is now (it does not cross in front of the walker).
+//!
+//! With several sources (`PlannerInput::others`, the sound map's other
+//! confirmed sources) every source has such a keep-out: a robot inside any of
+//! them backs out of all, and an ordinary goal the served source's plan puts
+//! inside another's keep-out is moved to the nearest spot clear of every
+//! keep-out (the served one's plan does not see the others), or dropped when
+//! there is none.
+//!
 //! Among the spots on the nearest ring with a way out and the next three
 //! (0.3 m further at most), the planner takes the one whose formation leaves
 //! θ least outside the band, each 0.1 m of extra drive counting as 2° of θ.
@@ -35,6 +43,8 @@ use super::free_space::FreeSpace;
 const RING_STEP_M: f64 = 0.1;
 /// Directions per ring.
 const DIRECTIONS: usize = 36;
+/// Farthest the search looks from the robot (m).
+const MAX_REACH_M: f64 = 6.0;
 /// Rings beyond the nearest with a way out among which the cheapest is taken.
 const EXTRA_RINGS: usize = 3;
 /// Cost of driving further than the nearest way out, per metre (the cost's
@@ -50,29 +60,41 @@ pub(super) fn escape_clearance_m(radius_m: f64, margin_m: f64, covariance_xy_m2:
     radius_m + margin_m.max(2.0 * sigma_h)
 }
 
-/// The nearest spot out of the keep-out for a robot at `p0` (see the module
-/// docs), or `None` when no free spot within reach has that clearance.
+/// Whether `q` lies at least `extra` beyond every keep-out's radius (with
+/// `extra` = 0: outside every keep-out).
+pub(super) fn clear_of(keeps: &[(KeepOut, f64)], q: &Point2<f64>, extra: f64) -> bool {
+    keeps.iter().all(|(k, _)| k.clearance(q) >= k.radius_m + extra)
+}
+
+/// The nearest spot out of every keep-out for a robot at `p0` (see the
+/// module docs): each `(keep-out, clearance)` pair asks for that clearance
+/// from its path. `None` when no free spot within reach has it.
 pub(super) fn escape_spot(
-    keep: &KeepOut,
+    keeps: &[(KeepOut, f64)],
     free: &FreeSpace,
     p0: &Point2<f64>,
-    clearance_m: f64,
     others: &[Point2<f64>],
     min_separation_m: f64,
     cost: impl Fn(&Point2<f64>) -> f64,
 ) -> Option<Point2<f64>> {
-    let from = keep.clearance(p0);
-    // Beyond this the whole keep-out plus its path lies behind the robot.
-    let reach = clearance_m + (keep.ahead - keep.now).norm() + 2.0 * RING_STEP_M;
+    let from: Vec<f64> = keeps.iter().map(|(k, _)| k.clearance(p0)).collect();
+    // Beyond this every keep-out and its path lies behind the robot.
+    let reach = keeps
+        .iter()
+        .map(|(k, want)| (k.now - p0).norm() + (k.ahead - k.now).norm() + want)
+        .fold(0.0, f64::max)
+        .min(MAX_REACH_M);
     let rings = (reach / RING_STEP_M).ceil() as usize;
+    // The drive there never comes nearer a path than the robot is now, where
+    // it is inside that keep-out.
     let drive_ok = |q: &Point2<f64>| {
-        (1..=DRIVE_SAMPLES).all(|k| {
-            let x = p0 + (q - p0) * (k as f64 / DRIVE_SAMPLES as f64);
-            keep.clearance(&x) >= from - 1e-9
+        (1..=DRIVE_SAMPLES).all(|s| {
+            let x = p0 + (q - p0) * (s as f64 / DRIVE_SAMPLES as f64);
+            keeps.iter().zip(&from).all(|((k, _), f)| *f >= k.radius_m || k.clearance(&x) >= f - 1e-9)
         })
     };
     let valid = |q: &Point2<f64>, separated: bool| {
-        keep.clearance(q) >= clearance_m
+        keeps.iter().all(|(k, want)| k.clearance(q) >= *want)
             && free.is_free(q)
             && (!separated || others.iter().all(|o| (q - o).norm() >= min_separation_m))
             && drive_ok(q)
@@ -126,7 +148,7 @@ mod tests {
     fn a_robot_next_to_a_still_source_backs_straight_away() {
         let keep = KeepOut { now: Point2::new(0.0, 0.0), ahead: Point2::new(0.0, 0.0), radius_m: 1.0 };
         let p0 = Point2::new(0.3, 0.0);
-        let q = escape_spot(&keep, &open(), &p0, 1.3, &[], 0.8, |_| 0.0).unwrap();
+        let q = escape_spot(&[(keep, 1.3)], &open(), &p0, &[], 0.8, |_| 0.0).unwrap();
         assert!(keep.clearance(&q) >= 1.3);
         assert!((q - p0).norm() < 1.1, "{q}");
         assert!(q.x > 1.2 && q.y.abs() < 0.25, "{q}");
@@ -139,7 +161,7 @@ mod tests {
         // aside 1.3 m.
         let keep = KeepOut { now: Point2::new(0.0, 0.0), ahead: Point2::new(1.0, 0.0), radius_m: 1.0 };
         let p0 = Point2::new(0.5, 0.01);
-        let q = escape_spot(&keep, &open(), &p0, 1.3, &[], 0.8, |_| 0.0).unwrap();
+        let q = escape_spot(&[(keep, 1.3)], &open(), &p0, &[], 0.8, |_| 0.0).unwrap();
         assert!(keep.clearance(&q) >= 1.3);
         assert!(q.y > 1.2 && (q.x - 0.5).abs() < 0.3, "{q}");
     }
@@ -155,7 +177,7 @@ mod tests {
         let free = FreeSpace::new(&cfg, 0.35);
         let keep = KeepOut { now: Point2::new(0.0, 0.0), ahead: Point2::new(0.0, 0.0), radius_m: 1.0 };
         let p0 = Point2::new(0.0, -0.6);
-        let q = escape_spot(&keep, &free, &p0, 1.3, &[], 0.8, |_| 0.0).unwrap();
+        let q = escape_spot(&[(keep, 1.3)], &free, &p0, &[], 0.8, |_| 0.0).unwrap();
         assert!(keep.clearance(&q) >= 1.3 && free.is_free(&q));
         assert!(q.y < -0.5 && q.x.abs() > 1.0, "{q}");
     }
@@ -165,7 +187,7 @@ mod tests {
         let keep = KeepOut { now: Point2::new(0.0, 0.0), ahead: Point2::new(0.0, 0.0), radius_m: 1.0 };
         let p0 = Point2::new(0.3, 0.0);
         let other = Point2::new(1.4, 0.0);
-        let q = escape_spot(&keep, &open(), &p0, 1.3, &[other], 0.8, |_| 0.0).unwrap();
+        let q = escape_spot(&[(keep, 1.3)], &open(), &p0, &[other], 0.8, |_| 0.0).unwrap();
         assert!((q - other).norm() >= 0.8 && keep.clearance(&q) >= 1.3, "{q}");
     }
 }

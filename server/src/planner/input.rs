@@ -78,4 +78,8 @@ pub struct PlannerInput {
     pub source: SourceEstimate,
     /// The robots; [`Goal::robot`](super::Goal::robot) indexes this list.
     pub robots: Vec<RobotState>,
+    /// Other known sources (the sound map's other confirmed sources): no goal
+    /// is planned for them, but every goal keeps out of their keep-outs as it
+    /// does of `source`'s, and a robot inside one backs out (`planner::escape`).
+    pub others: Vec<SourceEstimate>,
 }
