@@ -421,8 +421,45 @@ impl Planner {
             out.sort_by_key(|g| g.robot);
             goals = out;
         }
-        // Ordinary goals keep the served source's keep-out by construction, not
-        // the others'.
+        // Ordinary goals keep the served source's keep-out around its
+        // estimate, often right at its edge: pushed out by the estimate's
+        // horizontal 1-σ (at most `keep_out_margin_m`), so that an estimate a
+        // few centimetres off does not put them inside the true source's.
+        let (served, _) = keeps[0];
+        let sigma =
+            escape::horizontal_sigma_m(&input.source.covariance_m2.fixed_view::<2, 2>(0, 0).into_owned())
+                .min(self.config.keep_out_margin_m);
+        // Only where the pushed spot keeps the cycle's hard constraints: the
+        // step, the largest range, free space, the other keep-outs and the
+        // separation from where the other robots are going.
+        let cfg = &self.config;
+        let ends: Vec<Point2<f64>> = (0..input.robots.len())
+            .map(|j| {
+                goals.iter().find(|g| g.robot == j).map_or_else(
+                    || input.robots[j].active_goal.map_or(input.robots[j].base_xy(), |a| xy_of(&a)),
+                    |g| xy_of(&g.map_from_base),
+                )
+            })
+            .collect();
+        for g in goals.iter_mut().filter(|g| g.reason != RepositionReason::KeepOut) {
+            let q = xy_of(&g.map_from_base);
+            let p0 = input.robots[g.robot].base_xy();
+            let Some(out) = escape::push_out(&served, &q, served.radius_m + sigma) else { continue };
+            let centre = Point2::new(g.look_at_in_map.x, g.look_at_in_map.y);
+            let keeps_constraints = (out - p0).norm() <= cfg.step_m()
+                && (out - centre).norm() <= cfg.max_range_m
+                && self.free.is_free(&out)
+                && escape::clear_of(&keeps[1..], &out, 0.0)
+                && ends
+                    .iter()
+                    .enumerate()
+                    .all(|(j, e)| j == g.robot || (out - e).norm() >= cfg.min_separation_m);
+            if keeps_constraints {
+                g.map_from_base = pose::facing_pose(&out, &g.look_at_in_map);
+            }
+        }
+        // They keep the served source's keep-out by construction, not the
+        // others'.
         let others = &keeps[1..];
         let mut dropped = Vec::new();
         for k in 0..goals.len() {

@@ -54,7 +54,8 @@ pub struct PlannerConfig {
     pub max_range_m: f64,
     /// A robot that finds itself inside the keep-out (a walker came up to it)
     /// is sent out to r_min plus the larger of this and twice the estimate's
-    /// horizontal 1-σ, at once (`planner::escape`). Default 0.3 (m).
+    /// horizontal 1-σ (that part at most 1 m), at once (`planner::escape`).
+    /// Default 0.3 (m).
     pub keep_out_margin_m: f64,
     /// Range of the ideal spots (m), in [r_min, r_max]; information grows as 1/r². Default 2.0.
     pub preferred_range_m: f64,

@@ -12,7 +12,8 @@
 //! of the true source came from robots already inside).
 //!
 //! The way out is the nearest free spot whose clearance from the path is at
-//! least r_min + m, with the margin m = max(`keep_out_margin_m`, 2σ_h) and σ_h
+//! least r_min + m, with the margin m = max(`keep_out_margin_m`, 2σ_h) (2σ_h
+//! capped at 1 m: a vague estimate does not send robots metres away) and σ_h
 //! the estimate's largest horizontal 1-σ: the keep-out is about the true
 //! source, and the estimate is off by about σ_h (by 2σ_h in 14 % of cases
 //! for a 2D Gaussian, e^{−2}). Worked numbers: r_min 1 m, σ_h 0.1 m → the
@@ -30,6 +31,12 @@
 //! keep-out (the served one's plan does not see the others), or dropped when
 //! there is none.
 //!
+//! Ordinary goals, planned around the estimate, often lie right at the
+//! keep-out's edge; they are pushed straight out by the estimate's
+//! horizontal 1-σ (at most `keep_out_margin_m`), a few centimetres that
+//! keep them outside the true source's keep-out when the estimate is off by
+//! about that much, without changing the geometry planned.
+//!
 //! Among the spots on the nearest ring with a way out and the next three
 //! (0.3 m further at most), the planner takes the one whose formation leaves
 //! θ least outside the band, each 0.1 m of extra drive counting as 2° of θ.
@@ -43,6 +50,10 @@ use super::free_space::FreeSpace;
 const RING_STEP_M: f64 = 0.1;
 /// Directions per ring.
 const DIRECTIONS: usize = 36;
+/// Largest part of the margin the estimate's uncertainty adds (m): a robot
+/// is not sent metres away from a vague estimate (the planner accepts
+/// sources up to `max_source_rms_m`, 3 m).
+const MAX_UNCERTAINTY_MARGIN_M: f64 = 1.0;
 /// Farthest the search looks from the robot (m).
 const MAX_REACH_M: f64 = 6.0;
 /// Rings beyond the nearest with a way out among which the cheapest is taken.
@@ -53,11 +64,29 @@ const EXTRA_TRAVEL_COST_PER_M: f64 = 20.0;
 /// Points checked along the drive to a candidate.
 const DRIVE_SAMPLES: usize = 10;
 
-/// The clearance a robot backing out is sent to (m): r_min + max(margin, 2σ_h).
+/// The clearance a robot backing out is sent to (m): r_min + max(margin,
+/// min(2σ_h, 1 m)).
 pub(super) fn escape_clearance_m(radius_m: f64, margin_m: f64, covariance_xy_m2: &Matrix2<f64>) -> f64 {
+    let sigma_h = horizontal_sigma_m(covariance_xy_m2);
+    radius_m + margin_m.max((2.0 * sigma_h).min(MAX_UNCERTAINTY_MARGIN_M))
+}
+
+/// The largest horizontal 1-σ of a position covariance's xy block (m).
+pub(super) fn horizontal_sigma_m(covariance_xy_m2: &Matrix2<f64>) -> f64 {
     let sym = (covariance_xy_m2 + covariance_xy_m2.transpose()) * 0.5;
-    let sigma_h = sym.symmetric_eigenvalues().max().max(0.0).sqrt();
-    radius_m + margin_m.max(2.0 * sigma_h)
+    sym.symmetric_eigenvalues().max().max(0.0).sqrt()
+}
+
+/// `q` moved straight away from the keep-out's path to `clearance` from it,
+/// when it is nearer than that (`None` when it is not, or lies on the path).
+pub(super) fn push_out(keep: &KeepOut, q: &Point2<f64>, clearance: f64) -> Option<Point2<f64>> {
+    let d = keep.ahead - keep.now;
+    let len2 = d.norm_squared();
+    let t = if len2 > 0.0 { ((q - keep.now).dot(&d) / len2).clamp(0.0, 1.0) } else { 0.0 };
+    let c = keep.now + d * t;
+    let away = q - c;
+    let r = away.norm();
+    (r < clearance && r > 1e-9).then(|| c + away * (clearance / r))
 }
 
 /// Whether `q` lies at least `extra` beyond every keep-out's radius (with
@@ -142,6 +171,18 @@ mod tests {
         assert!((escape_clearance_m(1.0, 0.3, &tight) - 1.3).abs() < 1e-12);
         let loose = Matrix2::from_diagonal(&nalgebra::Vector2::new(0.0001, 0.0625));
         assert!((escape_clearance_m(1.0, 0.3, &loose) - 1.5).abs() < 1e-12);
+        let vague = Matrix2::from_diagonal(&nalgebra::Vector2::new(4.0, 4.0));
+        assert!((escape_clearance_m(1.0, 0.3, &vague) - 2.0).abs() < 1e-12);
+    }
+
+    #[test]
+    fn push_out_moves_straight_away_from_the_path() {
+        let keep = KeepOut { now: Point2::new(0.0, 0.0), ahead: Point2::new(1.0, 0.0), radius_m: 1.0 };
+        let q = push_out(&keep, &Point2::new(0.5, 1.0), 1.1).unwrap();
+        assert!((q - Point2::new(0.5, 1.1)).norm() < 1e-12);
+        let q = push_out(&keep, &Point2::new(-0.6, -0.8), 1.1).unwrap();
+        assert!((q - Point2::new(-0.66, -0.88)).norm() < 1e-12);
+        assert!(push_out(&keep, &Point2::new(0.5, 1.2), 1.1).is_none());
     }
 
     #[test]
