@@ -165,7 +165,7 @@ impl Planner {
         }
         let cfg = &self.config;
         let s = &input.source;
-        let src = s.position_in_map + s.velocity_in_map.unwrap_or_default() * cfg.source_lead_s;
+        let src = s.predicted(cfg.source_lead_s);
         let centre = Point2::new(src.x, src.y);
         let robots = &input.robots;
         let step = cfg.step_m();
@@ -382,7 +382,6 @@ impl Planner {
             .collect()
     }
 
-    /// Whether every active goal keeps range, free space and separation for the source at `centre`.
     /// Goals out of the keep-outs for the robots inside one whose active goal
     /// (if any) does not already leave them ([`escape`]).
     fn escapes(&self, input: &PlannerInput) -> Vec<Goal> {
@@ -427,20 +426,12 @@ impl Planner {
         // few centimetres off does not put them inside the true source's.
         let (served, _) = keeps[0];
         let sigma =
-            escape::horizontal_sigma_m(&input.source.covariance_m2.fixed_view::<2, 2>(0, 0).into_owned())
-                .min(self.config.keep_out_margin_m);
+            escape::horizontal_sigma_m(&input.source.covariance_m2).min(self.config.keep_out_margin_m);
         // Only where the pushed spot keeps the cycle's hard constraints: the
         // step, the largest range, free space, the other keep-outs and the
         // separation from where the other robots are going.
         let cfg = &self.config;
-        let ends: Vec<Point2<f64>> = (0..input.robots.len())
-            .map(|j| {
-                goals.iter().find(|g| g.robot == j).map_or_else(
-                    || input.robots[j].active_goal.map_or(input.robots[j].base_xy(), |a| xy_of(&a)),
-                    |g| xy_of(&g.map_from_base),
-                )
-            })
-            .collect();
+        let before_push = ends(&input.robots, &goals);
         for g in goals.iter_mut().filter(|g| g.reason != RepositionReason::KeepOut) {
             let q = xy_of(&g.map_from_base);
             let p0 = input.robots[g.robot].base_xy();
@@ -450,7 +441,7 @@ impl Planner {
                 && (out - centre).norm() <= cfg.max_range_m
                 && self.free.is_free(&out)
                 && escape::clear_of(&keeps[1..], &out, 0.0)
-                && ends
+                && before_push
                     .iter()
                     .enumerate()
                     .all(|(j, e)| j == g.robot || (out - e).norm() >= cfg.min_separation_m);
@@ -468,20 +459,8 @@ impl Planner {
             if g.reason == RepositionReason::KeepOut || escape::clear_of(others, &q0, 0.0) {
                 continue;
             }
-            let rest: Vec<Point2<f64>> = goals
-                .iter()
-                .filter(|o| o.robot != g.robot)
-                .map(|o| xy_of(&o.map_from_base))
-                .chain(
-                    input
-                        .robots
-                        .iter()
-                        .enumerate()
-                        .filter(|(j, _)| *j != g.robot && goals.iter().all(|o| o.robot != *j))
-                        .map(|(_, r)| r.active_goal.map_or(r.base_xy(), |a| xy_of(&a))),
-                )
-                .collect();
-            let cfg = &self.config;
+            let mut rest = ends(&input.robots, &goals);
+            rest.remove(g.robot);
             let spot = escape::escape_spot(&keeps, &self.free, &q0, &rest, cfg.min_separation_m, |_| 0.0);
             let g = &mut goals[k];
             match spot {
@@ -505,13 +484,10 @@ impl Planner {
         std::iter::once(&input.source)
             .chain(&input.others)
             .map(|s| {
-                let ahead = s.position_in_map + s.velocity_in_map.unwrap_or_default() * cfg.source_lead_s;
-                let keep = escape::keep_out(&s.position_in_map, &ahead, cfg.min_range_m);
-                let want = escape::escape_clearance_m(
-                    cfg.min_range_m,
-                    cfg.keep_out_margin_m,
-                    &s.covariance_m2.fixed_view::<2, 2>(0, 0).into_owned(),
-                );
+                let keep =
+                    escape::keep_out(&s.position_in_map, &s.predicted(cfg.source_lead_s), cfg.min_range_m);
+                let want =
+                    escape::escape_clearance_m(cfg.min_range_m, cfg.keep_out_margin_m, &s.covariance_m2);
                 (keep, want)
             })
             .collect()
@@ -527,12 +503,8 @@ impl Planner {
         let s = &input.source;
         let robots = &input.robots;
         let keeps = self.keep_outs(input);
-        let ahead = s.position_in_map + s.velocity_in_map.unwrap_or_default() * cfg.source_lead_s;
-        let mut destination: Vec<Point2<f64>> =
-            robots.iter().map(|r| r.active_goal.map_or(r.base_xy(), |g| xy_of(&g))).collect();
-        for g in planned {
-            destination[g.robot] = xy_of(&g.map_from_base);
-        }
+        let ahead = s.predicted(cfg.source_lead_s);
+        let mut destination = ends(robots, planned);
         let mut spots = Vec::new();
         for &i in inside {
             let others: Vec<Point2<f64>> =
@@ -592,12 +564,11 @@ impl Planner {
             .collect()
     }
 
+    /// Whether every active goal keeps range, free space and separation for the source at `centre`.
     fn active_goals_valid(&self, centre: &Point2<f64>, robots: &[RobotState]) -> bool {
         let cfg = &self.config;
         let tol = 0.05;
-        let spot = |r: &RobotState| {
-            r.active_goal.map_or(r.base_xy(), |g| Point2::new(g.translation.vector.x, g.translation.vector.y))
-        };
+        let spot = RobotState::destination_xy;
         let each = robots.iter().filter(|r| r.active_goal.is_some()).all(|r| {
             let g = spot(r);
             let rho = (g - centre).norm();
@@ -616,6 +587,16 @@ impl Planner {
 /// The xy position of a pose (m).
 fn xy_of(p: &nalgebra::Isometry3<f64>) -> Point2<f64> {
     Point2::new(p.translation.vector.x, p.translation.vector.y)
+}
+
+/// Where each robot ends up (map xy, m): its goal in `goals`, else its
+/// [`RobotState::destination_xy`].
+fn ends(robots: &[RobotState], goals: &[Goal]) -> Vec<Point2<f64>> {
+    let mut ends: Vec<Point2<f64>> = robots.iter().map(RobotState::destination_xy).collect();
+    for g in goals {
+        ends[g.robot] = xy_of(&g.map_from_base);
+    }
+    ends
 }
 
 /// Why the input cannot be planned for, if it cannot.

@@ -41,7 +41,7 @@
 //! (0.3 m further at most), the planner takes the one whose formation leaves
 //! θ least outside the band, each 0.1 m of extra drive counting as 2° of θ.
 
-use nalgebra::{Matrix2, Point2, Point3};
+use nalgebra::{Matrix2, Matrix3, Point2, Point3};
 
 use super::cycle::KeepOut;
 use super::free_space::FreeSpace;
@@ -66,14 +66,15 @@ const DRIVE_SAMPLES: usize = 10;
 
 /// The clearance a robot backing out is sent to (m): r_min + max(margin,
 /// min(2σ_h, 1 m)).
-pub(super) fn escape_clearance_m(radius_m: f64, margin_m: f64, covariance_xy_m2: &Matrix2<f64>) -> f64 {
-    let sigma_h = horizontal_sigma_m(covariance_xy_m2);
+pub(super) fn escape_clearance_m(radius_m: f64, margin_m: f64, covariance_m2: &Matrix3<f64>) -> f64 {
+    let sigma_h = horizontal_sigma_m(covariance_m2);
     radius_m + margin_m.max((2.0 * sigma_h).min(MAX_UNCERTAINTY_MARGIN_M))
 }
 
-/// The largest horizontal 1-σ of a position covariance's xy block (m).
-pub(super) fn horizontal_sigma_m(covariance_xy_m2: &Matrix2<f64>) -> f64 {
-    let sym = (covariance_xy_m2 + covariance_xy_m2.transpose()) * 0.5;
+/// The largest horizontal 1-σ of a 3D position covariance: that of its xy block (m).
+pub(super) fn horizontal_sigma_m(covariance_m2: &Matrix3<f64>) -> f64 {
+    let xy: Matrix2<f64> = covariance_m2.fixed_view::<2, 2>(0, 0).into_owned();
+    let sym = (xy + xy.transpose()) * 0.5;
     sym.symmetric_eigenvalues().max().max(0.0).sqrt()
 }
 
@@ -167,11 +168,11 @@ mod tests {
 
     #[test]
     fn clearance_grows_with_the_estimate_uncertainty() {
-        let tight = Matrix2::from_diagonal(&nalgebra::Vector2::new(0.01, 0.0001));
+        let tight = Matrix3::from_diagonal(&nalgebra::Vector3::new(0.01, 0.0001, 0.5));
         assert!((escape_clearance_m(1.0, 0.3, &tight) - 1.3).abs() < 1e-12);
-        let loose = Matrix2::from_diagonal(&nalgebra::Vector2::new(0.0001, 0.0625));
+        let loose = Matrix3::from_diagonal(&nalgebra::Vector3::new(0.0001, 0.0625, 0.5));
         assert!((escape_clearance_m(1.0, 0.3, &loose) - 1.5).abs() < 1e-12);
-        let vague = Matrix2::from_diagonal(&nalgebra::Vector2::new(4.0, 4.0));
+        let vague = Matrix3::from_diagonal(&nalgebra::Vector3::new(4.0, 4.0, 9.0));
         assert!((escape_clearance_m(1.0, 0.3, &vague) - 2.0).abs() < 1e-12);
     }
 

@@ -24,6 +24,12 @@ impl SourceEstimate {
         }
     }
 
+    /// Where the source is predicted `lead_s` ahead with its velocity (m;
+    /// where it is, without one).
+    pub fn predicted(&self, lead_s: f64) -> Point3<f64> {
+        self.position_in_map + self.velocity_in_map.unwrap_or_default() * lead_s
+    }
+
     /// √tr P (m): RMS 3D position uncertainty.
     pub fn rms_m(&self) -> f64 {
         self.covariance_m2.trace().max(0.0).sqrt()
@@ -50,6 +56,13 @@ impl RobotState {
     pub fn base_xy(&self) -> Point2<f64> {
         let t = self.map_from_base.translation.vector;
         Point2::new(t.x, t.y)
+    }
+
+    /// Where the robot ends up without a new goal (map xy, m): its active
+    /// goal, else where it is.
+    pub fn destination_xy(&self) -> Point2<f64> {
+        self.active_goal
+            .map_or_else(|| self.base_xy(), |g| Point2::new(g.translation.vector.x, g.translation.vector.y))
     }
 
     /// Array centre in the map frame at the current pose (m).
