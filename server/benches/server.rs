@@ -165,7 +165,12 @@ fn folded(rays: &[Ray]) -> Vec<Ray> {
     let lobe = array_pattern(&mics, (100.0, 8000.0)).expect("planar array").lobe(None);
     rays.iter()
         .map(|r| Ray {
-            fold: Some(FloorFold { array_height_m: r.origin_in_map.z.max(0.5), reflection: 0.6, lobe }),
+            fold: Some(FloorFold {
+                array_height_m: r.origin_in_map.z.max(0.5),
+                reflection: 0.6,
+                lobe,
+                ceiling_m: None,
+            }),
             ..*r
         })
         .collect()

@@ -504,23 +504,33 @@ impl Planner {
         let robots = &input.robots;
         let keeps = self.keep_outs(input);
         let ahead = s.predicted(cfg.source_lead_s);
+        let later = s.predicted(2.0 * cfg.source_lead_s);
         let mut destination = ends(robots, planned);
         let mut spots = Vec::new();
         for &i in inside {
             let others: Vec<Point2<f64>> =
                 destination.iter().enumerate().filter(|&(j, _)| j != i).map(|(_, p)| *p).collect();
             let p0 = robots[i].base_xy();
+            // θ where the source is predicted a lead ahead and one lead later:
+            // a walker that keeps walking must not leave a formation that was
+            // just inside the band (a robot backs out because the source is
+            // coming at it, so the next lead matters too).
             let outside_band_deg = |q: &Point2<f64>| {
-                let sensors: Vec<Sensor> = robots
+                [ahead, later]
                     .iter()
-                    .enumerate()
-                    .map(|(j, r)| {
-                        let at = if j == i { *q } else { destination[j] };
-                        sensor_at(&at, &ahead, &r.base_from_array, r.sigma_rad)
+                    .map(|at_source| {
+                        let sensors: Vec<Sensor> = robots
+                            .iter()
+                            .enumerate()
+                            .map(|(j, r)| {
+                                let at = if j == i { *q } else { destination[j] };
+                                sensor_at(&at, at_source, &r.base_from_array, r.sigma_rad)
+                            })
+                            .collect();
+                        let theta = assess(&sensors, at_source).theta_deg;
+                        (cfg.theta_min_deg - theta).max(theta - cfg.theta_max_deg).max(0.0)
                     })
-                    .collect();
-                let theta = assess(&sensors, &ahead).theta_deg;
-                (cfg.theta_min_deg - theta).max(theta - cfg.theta_max_deg).max(0.0)
+                    .fold(0.0, f64::max)
             };
             let sep = cfg.min_separation_m;
             if let Some(q) = escape::escape_spot(&keeps, &self.free, &p0, &others, sep, outside_band_deg) {

@@ -497,6 +497,40 @@ fn a_robot_inside_the_keep_out_backs_out_at_once() {
     assert!(matches!(out, PlanOutcome::Hold(HoldReason::NotDue { .. })), "{out:?}");
 }
 
+/// A walker heading at a robot: the way out keeps θ in band where the walker
+/// is predicted a lead ahead and one lead after that (it keeps walking).
+#[test]
+fn backing_out_of_a_walkers_way_keeps_theta_in_band_as_it_walks_on() {
+    let cfg = room_config();
+    let mut planner = Planner::new(cfg.clone()).unwrap();
+    // The walker at (3, 0) heading +x at 0.8 m/s, robot 0 just ahead of it,
+    // robot 1 behind it. The nearest way out that keeps θ in band one lead
+    // ahead (42°) leaves it at 23° a lead later; this one keeps both.
+    let mut estimate = SourceEstimate::at(Point3::new(3.0, 0.0, 1.2), 0.05);
+    estimate.velocity_in_map = Some(Vector3::new(0.8, 0.0, 0.0));
+    let robots = vec![robot(0, 3.5, 0.3), robot(1, 0.5, 2.5)];
+    let goals = planned(planner.plan(
+        Stamp::ZERO,
+        &PlannerInput { source: estimate.clone(), robots: robots.clone(), others: vec![] },
+    ));
+    let g = goals.iter().find(|g| g.robot == 0).expect("robot 0 backs out");
+    assert_eq!(g.reason, RepositionReason::KeepOut, "{goals:?}");
+    let p0 = xy(&g.map_from_base);
+    let p1 = goals.iter().find(|g| g.robot == 1).map_or(Point2::new(0.5, 2.5), |g| xy(&g.map_from_base));
+    let theta = |s: Point3<f64>| {
+        let a = Point3::new(p0.x, p0.y, ARRAY_HEIGHT_M) - s;
+        let b = Point3::new(p1.x, p1.y, ARRAY_HEIGHT_M) - s;
+        (a.dot(&b) / (a.norm() * b.norm())).acos().to_degrees()
+    };
+    for lead in [cfg.source_lead_s, 2.0 * cfg.source_lead_s] {
+        let t = theta(estimate.predicted(lead));
+        assert!(
+            (cfg.theta_min_deg..=cfg.theta_max_deg).contains(&t),
+            "θ {t:.1}° {lead} s ahead, robot 0 sent to {p0}"
+        );
+    }
+}
+
 /// With several sources the planner serves one, but no goal goes into the
 /// keep-out of another, and a robot standing in one backs out.
 #[test]

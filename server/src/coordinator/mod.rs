@@ -273,6 +273,7 @@ impl Coordinator {
         let default_sigma = self.config.doa.default_sigma_deg.to_radians();
         let (reflection, base_height_m) = (self.config.doa.floor_reflection, self.config.doa.base_height_m);
         let pull = self.config.doa.reverberant_pull;
+        let ceiling_m = self.config.doa.ceiling_height_m;
         let history_ns = self.config.alignment.history_ms as i64 * 1_000_000;
         let max_history = self.config.server.max_history_per_robot;
         let entry = match self.entry_mut(conn, "observation") {
@@ -334,7 +335,8 @@ impl Coordinator {
                         reverberant_reflection(c, fraction, pull)
                     })
                     .unwrap_or(reflection);
-                let fold = pattern.map(|p| FloorFold { array_height_m, reflection, lobe: p.lobe(band) });
+                let fold =
+                    pattern.map(|p| FloorFold { array_height_m, reflection, lobe: p.lobe(band), ceiling_m });
                 let ray = Ray {
                     fold,
                     ..Ray::from_doa(

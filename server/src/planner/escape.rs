@@ -40,6 +40,12 @@
 //! Among the spots on the nearest ring with a way out and the next three
 //! (0.3 m further at most), the planner takes the one whose formation leaves
 //! θ least outside the band, each 0.1 m of extra drive counting as 2° of θ.
+//! θ is taken where the source is predicted `source_lead_s` ahead *and* one
+//! lead later, the worse of the two: a robot backs out because a walker is
+//! coming at it, and a spot that leaves θ just inside the band for the first
+//! prediction is out of it a second later (`corner-start`, seeds 1–20: time
+//! in band after convergence 94.0 % → 96.3 % on average, seeds below 95 %
+//! 12 → 6, measured with the ceiling model of `floor_image` on).
 
 use nalgebra::{Matrix2, Matrix3, Point2, Point3};
 

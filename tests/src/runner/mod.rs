@@ -160,6 +160,9 @@ impl<'a> Sim<'a> {
         let fs = scenario.agent.sample_rate_hz;
         let robots = build_robots(scenario, seed)?;
         let mut config = scenario.coordinator.clone();
+        // The room's ceiling is known here, as a deployment knows its rooms;
+        // a scenario's own `[coordinator.doa] ceiling_height_m` wins.
+        config.doa.ceiling_height_m.get_or_insert(scenario.room.size_m[2]);
         configure_positioning(&mut config, scenario, active);
         options.view.apply(&mut config);
         let hellos: Vec<_> = robots.iter().map(SimRobot::hello).collect();

@@ -49,7 +49,8 @@ pub struct Scenario {
     /// Overrides of the agents' localization and tracking settings.
     #[serde(default)]
     pub agent: PipelineConfig,
-    /// Overrides of the coordinator's configuration (`listen` is ignored).
+    /// Overrides of the coordinator's configuration (`listen` is ignored);
+    /// `[doa] ceiling_height_m` defaults to the room's height.
     #[serde(default)]
     pub coordinator: CoordinatorConfig,
 }
