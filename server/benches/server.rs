@@ -90,10 +90,14 @@ fn bench_triangulation(quick: bool) {
     let lm8 = time_per_call(5, n8, |i| {
         black_box(triangulate(black_box(&sets8[i % 256]), &cfg));
     });
-    let sets_folded: Vec<Vec<Ray>> = sets.iter().map(|r| folded(r)).collect();
-    let sets8_folded: Vec<Vec<Ray>> = sets8.iter().map(|r| folded(r)).collect();
+    let sets_folded: Vec<Vec<Ray>> = sets.iter().map(|r| folded(r, None)).collect();
+    let sets8_folded: Vec<Vec<Ray>> = sets8.iter().map(|r| folded(r, None)).collect();
+    let sets_ceiling: Vec<Vec<Ray>> = sets.iter().map(|r| folded(r, Some(3.0))).collect();
     let pair_folded = time_per_call(5, n, |i| {
         black_box(triangulate(black_box(&sets_folded[i % 256]), &cfg));
+    });
+    let pair_ceiling = time_per_call(5, n / 10, |i| {
+        black_box(triangulate(black_box(&sets_ceiling[i % 256]), &cfg));
     });
     let lm8_folded = time_per_call(5, n8, |i| {
         black_box(triangulate(black_box(&sets8_folded[i % 256]), &cfg));
@@ -109,6 +113,7 @@ fn bench_triangulation(quick: bool) {
     println!(
         "| the same, folded rays (floor-image model: pair point + LM on the model) | {pair_folded:.0} |"
     );
+    println!("| the same, folded rays with a 3 m ceiling (vertical family of images) | {pair_ceiling:.0} |");
     println!("| 8 rays, folded (floor-image model) | {lm8_folded:.0} |");
     println!(
         "| 8 rays: IRLS least squares + Levenberg–Marquardt (Cauchy) with covariance and gate | {lm8:.0} |"
@@ -154,8 +159,8 @@ fn tracker_doas(seconds: f64) -> Vec<(Stamp, u32, Ray)> {
 
 /// The same rays as seen by planar arrays 0.5 m above the floor (8 microphones
 /// on a 0.36 m circle, about the 16SoundsUSB's aperture; the floor-image
-/// measurement model on, broadband source).
-fn folded(rays: &[Ray]) -> Vec<Ray> {
+/// measurement model on, broadband source; `ceiling_m` adds the ceiling's images).
+fn folded(rays: &[Ray], ceiling_m: Option<f64>) -> Vec<Ray> {
     let mics: Vec<Point3<f64>> = (0..8)
         .map(|k| {
             let a = k as f64 * std::f64::consts::FRAC_PI_4;
@@ -169,7 +174,7 @@ fn folded(rays: &[Ray]) -> Vec<Ray> {
                 array_height_m: r.origin_in_map.z.max(0.5),
                 reflection: 0.6,
                 lobe,
-                ceiling_m: None,
+                ceiling_m,
             }),
             ..*r
         })
@@ -195,13 +200,18 @@ fn bench_tracker(quick: bool) {
     println!("|---|---|---|");
     let mut per_update = Vec::new();
     let folded_doas: Vec<_> = {
-        let rays = folded(&doas.iter().map(|d| d.2).collect::<Vec<_>>());
+        let rays = folded(&doas.iter().map(|d| d.2).collect::<Vec<_>>(), None);
+        doas.iter().zip(rays).map(|(d, r)| (d.0, d.1, r)).collect()
+    };
+    let ceiling_doas: Vec<_> = {
+        let rays = folded(&doas.iter().map(|d| d.2).collect::<Vec<_>>(), Some(3.0));
         doas.iter().zip(rays).map(|(d, r)| (d.0, d.1, r)).collect()
     };
     for (name, order) in [
         ("in stamp order", &doas),
         ("1 in 16 arriving 0.25 s late", &late),
         ("in stamp order, folded rays (floor-image model)", &folded_doas),
+        ("in stamp order, folded rays with a 3 m ceiling", &ceiling_doas),
     ] {
         let mut applied = 0;
         let per = time_per_call(if quick { 5 } else { 20 }, 1, |_| {
@@ -215,7 +225,11 @@ fn bench_tracker(quick: bool) {
         println!("| {name} | {per:.0} | {applied} of {} |", order.len());
     }
     // A DoA 0.25 s late precedes ~15 buffered DoAs (60/s), which are re-run after it.
-    println!("folded / straight rays: {:.2}×", per_update[2] / per_update[0]);
+    println!(
+        "folded / straight rays: {:.2}×; with the ceiling: {:.2}×",
+        per_update[2] / per_update[0],
+        per_update[3] / per_update[0]
+    );
     let extra = (per_update[1] - per_update[0]) * 16.0;
     println!(
         "extra cost of one late DoA (insertion and re-running the ~15 after it): {:.1} µs\n",

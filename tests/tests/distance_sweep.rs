@@ -10,6 +10,14 @@
 //! ≤ 0.2 m at 6 m, trusted NEES ≤ 5); the `#[ignore]`d sweep checks them over
 //! 2–6 m and seeds 1–3:
 //! `cargo test -p soundmap-sim --test distance_sweep -- --ignored --nocapture`.
+//!
+//! The sweep takes other sources from the environment (its targets are then
+//! not asserted): `SOUNDMAP_DISTANCE_SIGNAL` = `white` (default), `band`
+//! (noise 300–3400 Hz) or `talker` (the same band, syllabic);
+//! `SOUNDMAP_DISTANCE_SOURCE_HEIGHT` (m, default 1.2); and
+//! `SOUNDMAP_DISTANCE_CEILING` (m): the ceiling height the coordinator's
+//! floor-image model is told (default: the room's, 3 m; 100 leaves the
+//! ceiling out of the model).
 
 use soundmap_sim::report::derived::Derived;
 use soundmap_sim::report::{RunRecord, Summary};
@@ -19,8 +27,36 @@ use soundmap_sim::scenario::Scenario;
 /// The source, away from the room's centre so that both robots stay ≥ 1.5 m from the walls at 6 m.
 const SOURCE: [f64; 3] = [2.0, 1.5, 1.2];
 
-fn scenario(distance_m: f64, seed: u64) -> Scenario {
-    let [x, y, z] = SOURCE;
+/// The sweep's source and model settings from the environment (module docs).
+fn environment() -> (String, f64, Option<f64>) {
+    let var = |name: &str| std::env::var(name).ok();
+    let signal = match var("SOUNDMAP_DISTANCE_SIGNAL").as_deref() {
+        None | Some("white") => "{ kind = \"white_noise\" }".to_string(),
+        Some("band") => "{ kind = \"band_noise\", low_hz = 300.0, high_hz = 3400.0 }".to_string(),
+        Some("talker") => {
+            "{ kind = \"talker\", low_hz = 300.0, high_hz = 3400.0, syllable_hz = 5.0 }".to_string()
+        }
+        Some(other) => panic!("SOUNDMAP_DISTANCE_SIGNAL: {other} is not white, band or talker"),
+    };
+    let number =
+        |name: &str| var(name).map(|v| v.parse::<f64>().unwrap_or_else(|e| panic!("{name}: {v}: {e}")));
+    (
+        signal,
+        number("SOUNDMAP_DISTANCE_SOURCE_HEIGHT").unwrap_or(SOURCE[2]),
+        number("SOUNDMAP_DISTANCE_CEILING"),
+    )
+}
+
+/// Whether the sweep runs its own source (and asserts its targets).
+fn default_environment() -> bool {
+    ["SOUNDMAP_DISTANCE_SIGNAL", "SOUNDMAP_DISTANCE_SOURCE_HEIGHT", "SOUNDMAP_DISTANCE_CEILING"]
+        .iter()
+        .all(|v| std::env::var(v).is_err())
+}
+
+fn scenario(distance_m: f64, seed: u64, (signal, z, ceiling): &(String, f64, Option<f64>)) -> Scenario {
+    let [x, y, _] = SOURCE;
+    let ceiling = ceiling.map_or(String::new(), |h| format!("[coordinator.doa]\nceiling_height_m = {h}\n"));
     let text = format!(
         r#"name = "distance-{distance_m}"
 description = "two robots at 90 degrees, {distance_m} m from a white-noise source (14 x 12 m room, RT60 0.5 s)"
@@ -36,6 +72,7 @@ rt60_s = 0.5
 sensor_snr_db = 25.0
 reference_distance_m = 3.0
 
+{ceiling}
 [[robots]]
 id = "pioneer"
 array = "16soundsusb-pioneer"
@@ -49,7 +86,7 @@ start = [{x}, {by}, 90.0]
 max_speed_m_per_s = 0.5
 
 [[sources]]
-signal = {{ kind = "white_noise" }}
+signal = {signal}
 rms = 0.1
 path = [{{ t_s = 0.0, x_m = {x}, y_m = {y}, z_m = {z} }}]
 "#,
@@ -70,8 +107,8 @@ struct Figures {
     nees_above_99: Option<f64>,
 }
 
-fn measure(distance_m: f64, seed: u64) -> Figures {
-    let record: RunRecord = run(&scenario(distance_m, seed), &RunOptions::default()).unwrap();
+fn measure(distance_m: f64, seed: u64, env: &(String, f64, Option<f64>)) -> Figures {
+    let record: RunRecord = run(&scenario(distance_m, seed, env), &RunOptions::default()).unwrap();
     let s = Summary::new(&record, &Derived::new(&record));
     let dz: Vec<f64> =
         record.rows.iter().filter_map(|r| Some(r.estimate_in_map?.z - r.truth_in_map?.z)).collect();
@@ -109,7 +146,7 @@ const HEADER: &str = "| distance | seed | estimates | RSE median | RSE p95 | mea
 fn near_and_far_sources_are_located() {
     println!("{HEADER}");
     for d in [2.0, 6.0] {
-        let f = measure(d, 1);
+        let f = measure(d, 1, &("{ kind = \"white_noise\" }".to_string(), SOURCE[2], None));
         row(d, 1, &f);
         assert!(f.estimates > 100, "{d} m: {f:?}");
         assert!(f.rse_median_m.is_some_and(|m| m <= 0.2), "{d} m: {f:?}");
@@ -120,11 +157,12 @@ fn near_and_far_sources_are_located() {
 #[test]
 #[ignore = "sweep: 2-6 m x seeds 1-3, a few minutes"]
 fn sweep_over_distance() {
-    println!("{HEADER}");
+    let env = environment();
+    println!("source {} at {} m, ceiling in the model {:?}\n{HEADER}", env.0, env.1, env.2);
     let mut missed = Vec::new();
     for d in [2.0, 3.0, 4.0, 5.0, 6.0] {
         for seed in 1..=3 {
-            let f = measure(d, seed);
+            let f = measure(d, seed, &env);
             row(d, seed, &f);
             if f.nees_mean_trusted.is_some_and(|n| n > 5.0) {
                 missed.push(format!("{d} m seed {seed}: trusted NEES {:.1}", f.nees_mean_trusted.unwrap()));
@@ -134,5 +172,9 @@ fn sweep_over_distance() {
             }
         }
     }
-    assert!(missed.is_empty(), "targets missed: {missed:?}");
+    if default_environment() {
+        assert!(missed.is_empty(), "targets missed: {missed:?}");
+    } else if !missed.is_empty() {
+        println!("(not asserted for this source) targets missed: {missed:?}");
+    }
 }

@@ -72,7 +72,7 @@ fn replay_of_a_recording_gives_the_same_estimates() {
         robots,
         truths: vec![TruthTrack::always(dir.join("source.tum"))],
         out: dir.join("replay"),
-        coordinator_config: None,
+        coordinator_config: Some(dir.join(soundmap_sim::runner::REPLAY_CONFIG)),
         pipeline: None,
         max_pose_gap_s: 0.5,
         view: soundmap_sim::viewer::ViewArgs::default(),
@@ -91,6 +91,7 @@ fn replay_of_a_recording_gives_the_same_estimates() {
     }
     println!("replay vs direct: {} estimates, largest difference {worst:.2e} m", direct.rows.len());
     assert!(worst < 1e-6, "largest difference {worst} m");
-    assert!(std::fs::read_to_string(dir.join("replay-command.txt")).unwrap().contains("--robot id=pioneer"));
+    let command = std::fs::read_to_string(dir.join("replay-command.txt")).unwrap();
+    assert!(command.contains("--robot id=pioneer") && command.contains("--coordinator-config"), "{command}");
     std::fs::remove_dir_all(&dir).unwrap();
 }

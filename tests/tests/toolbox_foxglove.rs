@@ -143,11 +143,14 @@ fn live_view_and_recording_change_nothing_and_replay_mcap_reproduces_the_run() {
     assert!((span_s - scenario.duration_s).abs() < 0.1, "log times span {span_s} s");
     assert!(rec["observation"]["doas"].as_u64().unwrap() >= 1);
 
-    // replay-mcap: the same estimates, scored against the recorded truth.
+    // replay-mcap: the same estimates, scored against the recorded truth, with
+    // the coordinator settings the simulator used (the room's ceiling).
+    let config = dir.join("coordinator.toml");
+    std::fs::write(&config, format!("[doa]\nceiling_height_m = {}\n", scenario.room.size_m[2])).unwrap();
     let args = ReplayMcapArgs {
         file: mcap.clone(),
         out: dir.join("replayed"),
-        config: None,
+        config: Some(config),
         view: ViewArgs::default(),
     };
     let replayed = replay_mcap(&args).unwrap();

@@ -337,7 +337,11 @@ impl<'a> Sim<'a> {
     }
 }
 
-/// Writes `replay-command.txt`: the `soundmap-sim replay` call that replays the recording.
+/// The coordinator configuration a recording is replayed with (in the recording's directory).
+pub const REPLAY_CONFIG: &str = "coordinator.toml";
+
+/// Writes `replay-command.txt`, the `soundmap-sim replay` call that replays the
+/// recording, and the coordinator configuration it names.
 fn write_replay_command(dir: &std::path::Path, scenario: &Scenario) -> Result<(), SimError> {
     let mut cmd = String::from("soundmap-sim replay");
     for r in crate::replay::RobotRecording::recorded(dir, scenario) {
@@ -351,6 +355,14 @@ fn write_replay_command(dir: &std::path::Path, scenario: &Scenario) -> Result<()
             recording::source_tum_name(k)
         ));
     }
+    // The coordinator settings the simulator adds to the scenario's (the
+    // room's ceiling), so that the replay runs the same measurement model.
+    let config = dir.join(REPLAY_CONFIG);
+    let ceiling = scenario.coordinator.doa.ceiling_height_m.unwrap_or(scenario.room.size_m[2]);
+    let text =
+        format!("# the simulated room's ceiling (floor-image model)\n[doa]\nceiling_height_m = {ceiling}\n");
+    std::fs::write(&config, text).map_err(|e| SimError::file(&config, e))?;
+    cmd.push_str(&format!(" \\\n  --coordinator-config {}", config.display()));
     cmd.push_str(" \\\n  --out OUT\n");
     let path = dir.join("replay-command.txt");
     std::fs::write(&path, cmd).map_err(|e| SimError::file(path, e))
