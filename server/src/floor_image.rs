@@ -613,7 +613,9 @@ impl FloorFold {
         // (the ceiling image then passes below the source), so the model stays
         // continuous there instead of switching to the floor image alone.
         let ceiling = self.ceiling_m.filter(|&h| h > h_a);
-        let c = if let (Some(ceiling), true) = (ceiling, h_a > 0.0 && h_s > 0.0 && self.reflection > 0.0) {
+        let c = if !(h_a > 0.0 && h_s > 0.0 && self.reflection > 0.0) {
+            c_direct
+        } else if let Some(ceiling) = ceiling {
             // Images of the source in the floor (z = 0) and the ceiling (z = H):
             // at 2nH + h_s after 2|n| reflections and 2nH − h_s after |2n − 1|,
             // heard at the source's azimuth with |z − h_a| above or below the array.
@@ -637,14 +639,12 @@ impl FloorFold {
                 }
             }
             self.lobe.family_peak(c_direct, &images[..count])
-        } else if h_a > 0.0 && h_s > 0.0 && self.reflection > 0.0 {
+        } else {
             let r_image = rho.hypot(h_s + h_a);
             let c_image = rho / r_image;
             let r = self.reflection * r_direct / r_image;
             let dc = c_direct - c_image;
             c_direct - self.lobe.beta(dc, r * r) * dc
-        } else {
-            c_direct
         };
         let c = c.clamp(0.0, 1.0);
         let s = (1.0 - c * c).max(0.0).sqrt();
@@ -754,7 +754,7 @@ mod tests {
     }
 
     /// Height error at the source (m) of what `fold` measures for a source
-    /// `rho` m away at height `h_s`, the array at `h_a`.
+    /// `rho` m away at height `h_s` (the array at the fold's height).
     fn height_bias(fold: &FloorFold, rho: f64, h_s: f64) -> f64 {
         let origin = Point3::new(0.0, 0.0, fold.array_height_m);
         let d = fold.measured_direction(&origin, &Point3::new(rho, 0.0, h_s)).unwrap();

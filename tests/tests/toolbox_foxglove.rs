@@ -145,8 +145,7 @@ fn live_view_and_recording_change_nothing_and_replay_mcap_reproduces_the_run() {
 
     // replay-mcap: the same estimates, scored against the recorded truth, with
     // the coordinator settings the simulator used (the room's ceiling).
-    let config = dir.join("coordinator.toml");
-    std::fs::write(&config, format!("[doa]\nceiling_height_m = {}\n", scenario.room.size_m[2])).unwrap();
+    let config = soundmap_sim::runner::write_replay_config(&dir, &scenario).unwrap();
     let args = ReplayMcapArgs {
         file: mcap.clone(),
         out: dir.join("replayed"),

@@ -203,12 +203,17 @@ pub(crate) struct KeepOut {
 }
 
 impl KeepOut {
-    /// Distance from `q` to the source's predicted path (m).
-    pub fn clearance(&self, q: &Point2<f64>) -> f64 {
+    /// The point of the source's predicted path nearest `q` (map xy, m).
+    pub fn nearest_on_path(&self, q: &Point2<f64>) -> Point2<f64> {
         let d = self.ahead - self.now;
         let len2 = d.norm_squared();
         let t = if len2 > 0.0 { ((q - self.now).dot(&d) / len2).clamp(0.0, 1.0) } else { 0.0 };
-        (q - (self.now + d * t)).norm()
+        self.now + d * t
+    }
+
+    /// Distance from `q` to the source's predicted path (m).
+    pub fn clearance(&self, q: &Point2<f64>) -> f64 {
+        (q - self.nearest_on_path(q)).norm()
     }
 
     /// Whether a robot at `from` may go to `to`: outside the keep-out, or, for

@@ -87,10 +87,7 @@ pub(super) fn horizontal_sigma_m(covariance_m2: &Matrix3<f64>) -> f64 {
 /// `q` moved straight away from the keep-out's path to `clearance` from it,
 /// when it is nearer than that (`None` when it is not, or lies on the path).
 pub(super) fn push_out(keep: &KeepOut, q: &Point2<f64>, clearance: f64) -> Option<Point2<f64>> {
-    let d = keep.ahead - keep.now;
-    let len2 = d.norm_squared();
-    let t = if len2 > 0.0 { ((q - keep.now).dot(&d) / len2).clamp(0.0, 1.0) } else { 0.0 };
-    let c = keep.now + d * t;
+    let c = keep.nearest_on_path(q);
     let away = q - c;
     let r = away.norm();
     (r < clearance && r > 1e-9).then(|| c + away * (clearance / r))

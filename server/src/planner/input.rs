@@ -61,8 +61,7 @@ impl RobotState {
     /// Where the robot ends up without a new goal (map xy, m): its active
     /// goal, else where it is.
     pub fn destination_xy(&self) -> Point2<f64> {
-        self.active_goal
-            .map_or_else(|| self.base_xy(), |g| Point2::new(g.translation.vector.x, g.translation.vector.y))
+        self.active_goal.map_or_else(|| self.base_xy(), |g| super::xy_of(&g))
     }
 
     /// Array centre in the map frame at the current pose (m).

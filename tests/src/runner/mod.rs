@@ -162,7 +162,7 @@ impl<'a> Sim<'a> {
         let mut config = scenario.coordinator.clone();
         // The room's ceiling is known here, as a deployment knows its rooms;
         // a scenario's own `[coordinator.doa] ceiling_height_m` wins.
-        config.doa.ceiling_height_m.get_or_insert(scenario.room.size_m[2]);
+        config.doa.ceiling_height_m = Some(ceiling_height_m(scenario));
         configure_positioning(&mut config, scenario, active);
         options.view.apply(&mut config);
         let hellos: Vec<_> = robots.iter().map(SimRobot::hello).collect();
@@ -340,6 +340,24 @@ impl<'a> Sim<'a> {
 /// The coordinator configuration a recording is replayed with (in the recording's directory).
 pub const REPLAY_CONFIG: &str = "coordinator.toml";
 
+/// The ceiling height the simulated coordinator's floor-image model is told
+/// (m): the scenario's own `[coordinator.doa] ceiling_height_m`, else the room's.
+pub fn ceiling_height_m(scenario: &Scenario) -> f64 {
+    scenario.coordinator.doa.ceiling_height_m.unwrap_or(scenario.room.size_m[2])
+}
+
+/// Writes [`REPLAY_CONFIG`] into `dir`: the coordinator settings the simulator
+/// adds to the scenario's (the room's ceiling), for replays; returns its path.
+pub fn write_replay_config(dir: &std::path::Path, scenario: &Scenario) -> Result<PathBuf, SimError> {
+    let config = dir.join(REPLAY_CONFIG);
+    let text = format!(
+        "# the simulated room's ceiling (floor-image model)\n[doa]\nceiling_height_m = {}\n",
+        ceiling_height_m(scenario)
+    );
+    std::fs::write(&config, text).map_err(|e| SimError::file(&config, e))?;
+    Ok(config)
+}
+
 /// Writes `replay-command.txt`, the `soundmap-sim replay` call that replays the
 /// recording, and the coordinator configuration it names.
 fn write_replay_command(dir: &std::path::Path, scenario: &Scenario) -> Result<(), SimError> {
@@ -355,13 +373,7 @@ fn write_replay_command(dir: &std::path::Path, scenario: &Scenario) -> Result<()
             recording::source_tum_name(k)
         ));
     }
-    // The coordinator settings the simulator adds to the scenario's (the
-    // room's ceiling), so that the replay runs the same measurement model.
-    let config = dir.join(REPLAY_CONFIG);
-    let ceiling = scenario.coordinator.doa.ceiling_height_m.unwrap_or(scenario.room.size_m[2]);
-    let text =
-        format!("# the simulated room's ceiling (floor-image model)\n[doa]\nceiling_height_m = {ceiling}\n");
-    std::fs::write(&config, text).map_err(|e| SimError::file(&config, e))?;
+    let config = write_replay_config(dir, scenario)?;
     cmd.push_str(&format!(" \\\n  --coordinator-config {}", config.display()));
     cmd.push_str(" \\\n  --out OUT\n");
     let path = dir.join("replay-command.txt");
