@@ -251,6 +251,7 @@ fn write_audio(array: &ArrayGeometry, dir: &std::path::Path, seconds: usize) {
         bits_per_sample: 16,
         sample_format: hound::SampleFormat::Int,
     };
+    std::fs::create_dir_all(dir).unwrap_or_else(|e| panic!("cannot create {}: {e}", dir.display()));
     let mut wav = hound::WavWriter::create(dir.join("agent-cpu.wav"), spec).unwrap();
     let mut raw = std::io::BufWriter::new(std::fs::File::create(dir.join("agent-cpu.raw")).unwrap());
     for _ in 0..seconds {

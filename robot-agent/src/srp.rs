@@ -32,6 +32,7 @@ pub mod grid;
 pub mod phat;
 pub mod refine;
 pub mod search;
+mod simd;
 #[cfg(test)]
 mod tests;
 
@@ -362,8 +363,9 @@ impl Srp {
         }
         self.cc.correlate();
         let sep = self.config.min_separation_deg.to_radians();
+        let (sin_sep, cos_sep) = sep.sin_cos();
         for _ in 0..self.config.max_sources {
-            let exclusion = Exclusion { found: &self.found, cos_sep: sep.cos(), sep_rad: sep };
+            let exclusion = Exclusion { found: &self.found, cos_sep, sin_sep, sep_rad: sep };
             let hit = match self.config.search {
                 SearchMode::Hierarchical => self.tables.search_hierarchical(
                     &self.cc.lin,
@@ -495,9 +497,25 @@ impl Srp {
 
     /// Zeroes every pair's correlation around the TDOAs of direction `d`.
     fn suppress(&mut self, d: &Unit<Vector3<f64>>) {
+        simd::run(self.cc.arch, Suppress { cc: &mut self.cc, pair_axes: &self.pair_axes, d })
+    }
+}
+
+/// [`Srp::suppress`] as a vectorized kernel.
+struct Suppress<'a> {
+    cc: &'a mut CrossCorrelator,
+    pair_axes: &'a [Vector3<f64>],
+    d: &'a Vector3<f64>,
+}
+
+impl simd::Kernel for Suppress<'_> {
+    type Output = ();
+
+    #[inline(always)]
+    fn run(self) {
         let r = self.cc.lag_radius as f64;
-        for p in 0..self.pair_axes.len() {
-            let t = (self.pair_axes[p].dot(d) + r) as f32;
+        for (p, axis) in self.pair_axes.iter().enumerate() {
+            let t = (axis.dot(self.d) + r) as f32;
             self.cc.suppress(p, t, 1);
         }
     }

@@ -68,6 +68,8 @@ pub struct CrossCorrelator {
     pub(super) cc_max: Vec<f32>,
     pub(super) window: Vec<usize>,
     tmp: Vec<f32>,
+    /// The CPU's vector instructions (see [`super::simd`]).
+    pub(super) arch: pulp::Arch,
 }
 
 impl std::fmt::Debug for CrossCorrelator {
@@ -110,6 +112,7 @@ impl CrossCorrelator {
             tmp: vec![0.0; 2 * (stride + 2 * window.iter().copied().max().unwrap_or(0))],
             window,
             pairs,
+            arch: pulp::Arch::new(),
         }
     }
 
@@ -141,6 +144,11 @@ impl CrossCorrelator {
     /// the PHAT cross-spectra, two pairs per complex FFT), then `lin` and the
     /// sliding maxima `cc_max`.
     pub fn correlate(&mut self) {
+        super::simd::run(self.arch, Correlate(self));
+    }
+
+    #[inline(always)]
+    fn correlate_body(&mut self) {
         let (k, padded) = (self.band.len(), self.padded);
         let (n, r, lo) = (self.frame_len, self.lag_radius, self.band.lo);
         let scale = 1.0 / (2.0 * k as f32);
@@ -214,6 +222,7 @@ impl CrossCorrelator {
     }
 
     /// Updates `lin` and `cc_max` of pair `p` from its `cc` row.
+    #[inline(always)]
     fn finish_row(&mut self, p: usize) {
         let s = self.stride;
         let row = &self.cc[p * s..(p + 1) * s];
@@ -226,27 +235,42 @@ impl CrossCorrelator {
     }
 
     /// `cc_max[p][n] = max(cc[p][n−w..=n+w])` (clipped at the stored lags).
-    ///
-    /// The row is padded with `w` entries of −∞ on each side, so that one
-    /// formula holds everywhere: after ⌊log₂(2w+1)⌋ doubling passes
-    /// `a[n] = max(pad[n..n+span])`, and the window `[n−w, n+w]` of the row is
-    /// `[n, n+2w]` of the padding, the union of two overlapping spans.
+    #[inline(always)]
     pub(super) fn sliding_max(&mut self, p: usize) {
+        self.sliding_max_range(p, 0, self.stride);
+    }
+
+    /// [`Self::sliding_max`] for the lags `from..to` of pair `p` only.
+    ///
+    /// The lags it reads, `from−w..to+w` clipped to the row, are padded with
+    /// −∞ up to `w` entries on each side, so that one formula holds
+    /// everywhere: after ⌊log₂(2w+1)⌋ doubling passes
+    /// `a[n] = max(pad[n..n+span])`, and the window `[n−w, n+w]` of the row
+    /// is `[n, n+2w]` of the padding, the union of two overlapping spans.
+    #[inline(always)]
+    fn sliding_max_range(&mut self, p: usize, from: usize, to: usize) {
         let s = self.stride;
         let w = self.window[p];
-        let src = &self.cc[p * s..(p + 1) * s];
-        let dst = &mut self.cc_max[p * s..(p + 1) * s];
-        if w == 0 {
-            dst.copy_from_slice(src);
+        let (from, to) = (from.min(s), to.min(s));
+        if from >= to {
             return;
         }
-        let len = s + 2 * w;
+        let dst = &mut self.cc_max[p * s + from..p * s + to];
+        if w == 0 {
+            dst.copy_from_slice(&self.cc[p * s + from..p * s + to]);
+            return;
+        }
+        // Padded row: entry n + w is lag n; lags read: [read_lo, read_hi).
+        let (read_lo, read_hi) = (from.saturating_sub(w), (to + w).min(s));
+        let src = &self.cc[p * s + read_lo..p * s + read_hi];
+        let len = (to - from) + 2 * w;
+        let lead = w - (from - read_lo);
         let half = self.tmp.len() / 2;
         let (a, b) = self.tmp.split_at_mut(half);
         let (mut a, mut b) = (&mut a[..len], &mut b[..len]);
-        a[..w].fill(f32::NEG_INFINITY);
-        a[w..w + s].copy_from_slice(src);
-        a[w + s..].fill(f32::NEG_INFINITY);
+        a[..lead].fill(f32::NEG_INFINITY);
+        a[lead..lead + src.len()].copy_from_slice(src);
+        a[lead + src.len()..].fill(f32::NEG_INFINITY);
         let width = 2 * w + 1;
         let mut span = 1;
         while span * 2 <= width {
@@ -265,12 +289,14 @@ impl CrossCorrelator {
     /// Zeroes pair `p`'s correlation around fractional lag index `t`
     /// (`t = lag + R`) over `±half` lags, and updates its interpolation
     /// table and sliding maxima.
+    #[inline(always)]
     pub(super) fn suppress(&mut self, p: usize, t: f32, half: usize) {
         let s = self.stride;
         let c = t.floor().max(0.0) as usize;
         let lo = c.saturating_sub(half);
         let hi = (c + 1 + half).min(s - 1);
         self.cc[p * s + lo..=p * s + hi].fill(0.0);
+        let w = self.window[p];
         // Only entries that read the zeroed lags change.
         let row = &self.cc[p * s..(p + 1) * s];
         for q in lo.saturating_sub(1)..=hi {
@@ -278,8 +304,20 @@ impl CrossCorrelator {
             self.lin[p * s + q] = [row[q], next - row[q]];
         }
         // Sliding maxima: exact bounds matter (stale ones would send the next
-        // search back to this peak); the whole row costs a few vector passes.
-        self.sliding_max(p);
+        // search back to this peak); only those within w of the zeroed lags change.
+        self.sliding_max_range(p, lo.saturating_sub(w), hi + w + 1);
+    }
+}
+
+/// [`CrossCorrelator::correlate`] as a vectorized kernel.
+struct Correlate<'a>(&'a mut CrossCorrelator);
+
+impl super::simd::Kernel for Correlate<'_> {
+    type Output = ();
+
+    #[inline(always)]
+    fn run(self) {
+        self.0.correlate_body()
     }
 }
 
@@ -322,14 +360,24 @@ mod tests {
         for q in 0..s {
             c.cc[q] = ((q * 7919) % 23) as f32 - 11.0;
         }
+        let brute = |c: &CrossCorrelator, w: usize, q: usize| {
+            let (lo, hi) = (q.saturating_sub(w), (q + w).min(s - 1));
+            c.cc[lo..=hi].iter().cloned().fold(f32::MIN, f32::max)
+        };
         for w in 0..8 {
             c.window[0] = w;
             c.sliding_max(0);
             for q in 0..s {
-                let lo = q.saturating_sub(w);
-                let hi = (q + w).min(s - 1);
-                let m = c.cc[lo..=hi].iter().cloned().fold(f32::MIN, f32::max);
-                assert_eq!(c.cc_max[q], m, "w={w} q={q}");
+                assert_eq!(c.cc_max[q], brute(&c, w, q), "w={w} q={q}");
+            }
+            // Part of a row, anywhere in it, leaves the rest alone.
+            for (from, to) in [(0, 3), (5, 9), (s - 4, s), (2, s + 5)] {
+                c.cc_max.fill(-99.0);
+                c.sliding_max_range(0, from, to);
+                for q in 0..s {
+                    let want = if (from..to).contains(&q) { brute(&c, w, q) } else { -99.0 };
+                    assert_eq!(c.cc_max[q], want, "w={w} q={q} range {from}..{to}");
+                }
             }
         }
     }

@@ -102,6 +102,8 @@ pub struct Refiner {
     ph: Vec<f32>,
     /// Beamformer evaluations since the counter was last read.
     pub(super) evaluations: usize,
+    /// The CPU's vector instructions (see [`super::simd`]).
+    arch: pulp::Arch,
 }
 
 impl Refiner {
@@ -137,11 +139,13 @@ impl Refiner {
             yi: vec![0.0; padded],
             ph: vec![0.0; 2 * positions.len() * padded],
             evaluations: 0,
+            arch: pulp::Arch::new(),
         }
     }
 
     /// Writes `Y[k] = X̃ᵢ[k] e^{−jωₖ a}` of microphone `i` to `yr`/`yi`, and
     /// the phasors to `ph` when `keep_phasors`.
+    #[inline(always)]
     fn steer(&mut self, cc: &CrossCorrelator, i: usize, a: f64, keep_phasors: bool) {
         let (k, padded) = (self.bins, self.padded);
         // One sincos: e^{−jΔω a}; the start and the 8-bin step are its powers.
@@ -226,6 +230,23 @@ impl Refiner {
     /// (used for planar arrays, whose delays only see the in-plane part of `d`).
     #[allow(clippy::too_many_arguments)]
     pub fn local(
+        &mut self,
+        cc: &CrossCorrelator,
+        d: &Vector3<f64>,
+        e1: &Vector3<f64>,
+        e2: &Vector3<f64>,
+        gains: &[f32],
+        curvature: bool,
+        t: f64,
+        with_range: bool,
+    ) -> Local {
+        let at = At { d, e1, e2, curvature, t, with_range };
+        super::simd::run(self.arch, Evaluate { refiner: self, cc, gains, at })
+    }
+
+    #[allow(clippy::too_many_arguments)]
+    #[inline(always)]
+    fn local_body(
         &mut self,
         cc: &CrossCorrelator,
         d: &Vector3<f64>,
@@ -502,6 +523,34 @@ impl Refiner {
             }
             cc.phat_energy[i] = energy;
         }
+    }
+}
+
+/// Where [`Refiner::local`] evaluates.
+struct At<'a> {
+    d: &'a Vector3<f64>,
+    e1: &'a Vector3<f64>,
+    e2: &'a Vector3<f64>,
+    curvature: bool,
+    t: f64,
+    with_range: bool,
+}
+
+/// [`Refiner::local`] as a vectorized kernel.
+struct Evaluate<'a> {
+    refiner: &'a mut Refiner,
+    cc: &'a CrossCorrelator,
+    gains: &'a [f32],
+    at: At<'a>,
+}
+
+impl super::simd::Kernel for Evaluate<'_> {
+    type Output = Local;
+
+    #[inline(always)]
+    fn run(self) -> Local {
+        let At { d, e1, e2, curvature, t, with_range } = self.at;
+        self.refiner.local_body(self.cc, d, e1, e2, self.gains, curvature, t, with_range)
     }
 }
 

@@ -39,8 +39,10 @@ pub struct SearchTables {
     /// Fine points `cell_offsets[c]..cell_offsets[c+1]` form coarse cell `c`.
     cell_offsets: Vec<u32>,
     coarse_dirs: Vec<Vector3<f64>>,
-    /// Angular radius of each cell (largest angle from its coarse point to its fine points).
+    /// Angular radius of each cell (largest angle from its coarse point to
+    /// its fine points), and its cosine and sine.
     cell_radius: Vec<f64>,
+    cell_radius_cos_sin: Vec<(f64, f64)>,
     /// `coarse_idx[c*P + p]`: flat index into `cc_max` (pair row + rounded lag).
     coarse_idx: Vec<u32>,
     coarse_weight: Option<Vec<f32>>,
@@ -57,6 +59,8 @@ pub struct SearchTables {
     generation: u32,
     /// Counters since last read: searches, cells opened, fine points evaluated.
     pub(super) counters: [usize; 3],
+    /// The CPU's vector instructions (see [`super::simd`]).
+    arch: pulp::Arch,
 }
 
 /// Which fine points are excluded (too close to an earlier potential).
@@ -66,11 +70,14 @@ pub struct Exclusion<'a> {
     pub found: &'a [Vector3<f64>],
     /// cos of the minimum separation.
     pub cos_sep: f64,
+    /// sin of the minimum separation.
+    pub sin_sep: f64,
     /// The minimum separation, radians.
     pub sep_rad: f64,
 }
 
 impl Exclusion<'_> {
+    #[inline(always)]
     fn excludes(&self, d: &Vector3<f64>) -> bool {
         self.found.iter().any(|f| f.dot(d) > self.cos_sep)
     }
@@ -188,12 +195,14 @@ impl SearchTables {
             coarse_val: vec![0.0; coarse_dirs.len()],
             cell_open: vec![false; coarse_dirs.len()],
             cell_offsets,
+            cell_radius_cos_sin: cell_radius.iter().map(|r| (r.cos(), r.sin())).collect(),
             cell_radius,
             coarse_weight,
             coarse_dirs,
             fine_dirs,
             windows,
             max_tdoa,
+            arch: pulp::Arch::new(),
         }
         .with_lags(pair_axes)
     }
@@ -243,7 +252,7 @@ impl SearchTables {
 
     /// Fine response (sum over pairs of the linearly interpolated
     /// correlation) at fine point `f`; `lin` holds `[cc[n], cc[n+1] − cc[n]]`.
-    #[inline]
+    #[inline(always)]
     pub fn fine_value(&self, lin: &[[f32; 2]], f: usize) -> f32 {
         let range = f * self.pairs..(f + 1) * self.pairs;
         let (idx, frac) = (&self.fine_idx[range.clone()], &self.fine_frac[range.clone()]);
@@ -277,6 +286,7 @@ impl SearchTables {
     }
 
     /// [`Self::fine_value`] through the per-search cache.
+    #[inline(always)]
     fn cached(&mut self, lin: &[[f32; 2]], f: usize) -> f32 {
         if self.cache_gen[f] != self.generation {
             self.cache[f] = self.fine_value(lin, f);
@@ -286,6 +296,7 @@ impl SearchTables {
         self.cache[f]
     }
 
+    #[inline(always)]
     fn new_generation(&mut self) {
         self.generation = self.generation.wrapping_add(1);
         if self.generation == 0 {
@@ -295,6 +306,7 @@ impl SearchTables {
         self.counters[0] += 1;
     }
 
+    #[inline(always)]
     fn coarse_values(&mut self, cc_max: &[f32]) {
         let p = self.pairs;
         for (c, v) in self.coarse_val.iter_mut().enumerate() {
@@ -319,6 +331,17 @@ impl SearchTables {
         max_cells: usize,
         exclusion: &Exclusion<'_>,
     ) -> Option<(usize, f32)> {
+        super::simd::run(self.arch, Hierarchical { tables: self, lin, cc_max, max_cells, exclusion })
+    }
+
+    #[inline(always)]
+    fn search_hierarchical_body(
+        &mut self,
+        lin: &[[f32; 2]],
+        cc_max: &[f32],
+        max_cells: usize,
+        exclusion: &Exclusion<'_>,
+    ) -> Option<(usize, f32)> {
         self.new_generation();
         self.coarse_values(cc_max);
         for (c, open) in self.cell_open.iter_mut().enumerate() {
@@ -326,7 +349,9 @@ impl SearchTables {
             // angle(found, centre) + radius < sep.
             let slack = exclusion.sep_rad - self.cell_radius[c];
             *open = !exclusion.found.is_empty() && slack > 0.0 && {
-                let cos_slack = slack.cos();
+                // cos(sep − radius), without a cosine per cell and search.
+                let (cos_r, sin_r) = self.cell_radius_cos_sin[c];
+                let cos_slack = exclusion.cos_sep * cos_r + exclusion.sin_sep * sin_r;
                 exclusion.found.iter().any(|f| f.dot(&self.coarse_dirs[c]) > cos_slack)
             };
         }
@@ -409,6 +434,7 @@ impl SearchTables {
     }
 
     /// Moves to the best neighbour until none is better (a local maximum of the fine mesh).
+    #[inline(always)]
     fn hill_climb(
         &mut self,
         lin: &[[f32; 2]],
@@ -438,8 +464,26 @@ impl SearchTables {
     }
 }
 
+/// [`SearchTables::search_hierarchical`] as a vectorized kernel.
+struct Hierarchical<'a, 'e> {
+    tables: &'a mut SearchTables,
+    lin: &'a [[f32; 2]],
+    cc_max: &'a [f32],
+    max_cells: usize,
+    exclusion: &'a Exclusion<'e>,
+}
+
+impl super::simd::Kernel for Hierarchical<'_, '_> {
+    type Output = Option<(usize, f32)>;
+
+    #[inline(always)]
+    fn run(self) -> Self::Output {
+        self.tables.search_hierarchical_body(self.lin, self.cc_max, self.max_cells, self.exclusion)
+    }
+}
+
 /// `Σ v[idx[q]]` with independent accumulators.
-#[inline]
+#[inline(always)]
 fn sum_gather(v: &[f32], idx: &[u32]) -> f32 {
     let mut acc = [0f32; 8];
     let chunks = idx.chunks_exact(8);
