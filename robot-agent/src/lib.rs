@@ -37,6 +37,7 @@ pub mod odas;
 pub mod pipeline;
 pub mod pose;
 pub mod signature;
+mod simd;
 pub mod srp;
 pub mod stft;
 

@@ -165,6 +165,26 @@ pub struct Signatures {
     /// Scratch: one beam spectrum, real and imaginary parts, `padded` each.
     yr: Vec<[f32; LANES]>,
     yi: Vec<[f32; LANES]>,
+    /// The CPU's vector instructions (see [`crate::simd`]).
+    arch: pulp::Arch,
+}
+
+/// [`Signatures::update`] as a vectorized kernel.
+struct Update<'a> {
+    signatures: &'a mut Signatures,
+    spectra: &'a [Complex<f32>],
+    tracks: &'a [TrackedDirection],
+    reported: &'a [usize],
+    out: &'a mut Vec<f32>,
+}
+
+impl crate::simd::Kernel for Update<'_> {
+    type Output = ();
+
+    #[inline(always)]
+    fn run(self) {
+        self.signatures.update_body(self.spectra, self.tracks, self.reported, self.out)
+    }
 }
 
 /// What signatures need to know of the pipeline they run in.
@@ -249,6 +269,7 @@ impl Signatures {
             yr: vec![[0.0; LANES]; padded / LANES],
             yi: vec![[0.0; LANES]; padded / LANES],
             edges_hz,
+            arch: pulp::Arch::new(),
         })
     }
 
@@ -274,6 +295,18 @@ impl Signatures {
     /// `reported`. Tracks beyond K are ignored. Allocates nothing once `out`
     /// holds `K × B`.
     pub fn update(
+        &mut self,
+        spectra: &[Complex<f32>],
+        tracks: &[TrackedDirection],
+        reported: &[usize],
+        out: &mut Vec<f32>,
+    ) {
+        let arch = self.arch;
+        crate::simd::run(arch, Update { signatures: self, spectra, tracks, reported, out });
+    }
+
+    #[inline(always)]
+    fn update_body(
         &mut self,
         spectra: &[Complex<f32>],
         tracks: &[TrackedDirection],
@@ -337,6 +370,7 @@ impl Signatures {
     }
 
     /// Copies the span of every microphone's spectrum into `xr`/`xi`.
+    #[inline(always)]
     fn split_spectra(&mut self, spectra: &[Complex<f32>]) {
         let (span, padded) = (self.span, self.padded);
         for (m, (xr, xi)) in self
@@ -363,6 +397,7 @@ impl Signatures {
     /// (the 1/M of the module docs is in the normalization), from `xr`/`xi`.
     /// Each microphone's phasors run in `LANES` lanes (bins k..k+8) advanced
     /// by `e^{−j8Δω dₘ·u}`, re-anchored exactly every `REANCHOR_BINS` bins.
+    #[inline(always)]
     fn steer(&mut self, u: &Vector3<f64>) {
         let chunks = self.padded / LANES;
         let per_anchor = REANCHOR_BINS / LANES;

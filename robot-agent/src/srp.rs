@@ -32,7 +32,6 @@ pub mod grid;
 pub mod phat;
 pub mod refine;
 pub mod search;
-mod simd;
 #[cfg(test)]
 mod tests;
 
@@ -408,6 +407,15 @@ impl Srp {
         }
     }
 
+    /// Runs the hot loops with `arch`'s instructions instead of the best
+    /// the CPU has (tests compare the two).
+    #[cfg(test)]
+    fn set_arch(&mut self, arch: pulp::Arch) {
+        self.cc.arch = arch;
+        self.tables.arch = arch;
+        self.refiner.arch = arch;
+    }
+
     /// Directivity gains of the microphones toward `d`.
     fn set_gains(&mut self, d: &Unit<Vector3<f64>>) {
         for (g, m) in self.gains.iter_mut().zip(&self.mics) {
@@ -497,7 +505,7 @@ impl Srp {
 
     /// Zeroes every pair's correlation around the TDOAs of direction `d`.
     fn suppress(&mut self, d: &Unit<Vector3<f64>>) {
-        simd::run(self.cc.arch, Suppress { cc: &mut self.cc, pair_axes: &self.pair_axes, d })
+        crate::simd::run(self.cc.arch, Suppress { cc: &mut self.cc, pair_axes: &self.pair_axes, d })
     }
 }
 
@@ -508,7 +516,7 @@ struct Suppress<'a> {
     d: &'a Vector3<f64>,
 }
 
-impl simd::Kernel for Suppress<'_> {
+impl crate::simd::Kernel for Suppress<'_> {
     type Output = ();
 
     #[inline(always)]

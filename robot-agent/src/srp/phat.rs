@@ -119,6 +119,11 @@ impl CrossCorrelator {
     /// PHAT-normalizes the band of each channel's spectrum (`spectra`:
     /// channel-major, `frame_len/2 + 1` bins per channel). Silent bins give 0.
     pub fn whiten(&mut self, spectra: &[Complex<f32>]) {
+        crate::simd::run(self.arch, Whiten(self, spectra));
+    }
+
+    #[inline(always)]
+    fn whiten_body(&mut self, spectra: &[Complex<f32>]) {
         let bins = self.frame_len / 2 + 1;
         let (k, padded) = (self.band.len(), self.padded);
         for i in 0..self.mics {
@@ -144,7 +149,7 @@ impl CrossCorrelator {
     /// the PHAT cross-spectra, two pairs per complex FFT), then `lin` and the
     /// sliding maxima `cc_max`.
     pub fn correlate(&mut self) {
-        super::simd::run(self.arch, Correlate(self));
+        crate::simd::run(self.arch, Correlate(self));
     }
 
     #[inline(always)]
@@ -309,10 +314,22 @@ impl CrossCorrelator {
     }
 }
 
+/// [`CrossCorrelator::whiten`] as a vectorized kernel.
+struct Whiten<'a, 's>(&'a mut CrossCorrelator, &'s [Complex<f32>]);
+
+impl crate::simd::Kernel for Whiten<'_, '_> {
+    type Output = ();
+
+    #[inline(always)]
+    fn run(self) {
+        self.0.whiten_body(self.1)
+    }
+}
+
 /// [`CrossCorrelator::correlate`] as a vectorized kernel.
 struct Correlate<'a>(&'a mut CrossCorrelator);
 
-impl super::simd::Kernel for Correlate<'_> {
+impl crate::simd::Kernel for Correlate<'_> {
     type Output = ();
 
     #[inline(always)]

@@ -102,8 +102,8 @@ pub struct Refiner {
     ph: Vec<f32>,
     /// Beamformer evaluations since the counter was last read.
     pub(super) evaluations: usize,
-    /// The CPU's vector instructions (see [`super::simd`]).
-    arch: pulp::Arch,
+    /// The CPU's vector instructions (see [`crate::simd`]).
+    pub(super) arch: pulp::Arch,
 }
 
 impl Refiner {
@@ -241,7 +241,7 @@ impl Refiner {
         with_range: bool,
     ) -> Local {
         let at = At { d, e1, e2, curvature, t, with_range };
-        super::simd::run(self.arch, Evaluate { refiner: self, cc, gains, at })
+        crate::simd::run(self.arch, Evaluate { refiner: self, cc, gains, at })
     }
 
     #[allow(clippy::too_many_arguments)]
@@ -307,6 +307,7 @@ impl Refiner {
     /// Per bin, from the accumulators: B, its derivatives and the power's,
     /// summed over bins in lanes: `[Σ|B|², Σ Re B*B_u, Σ Re B*B_v, ½P_uu, ½P_uv,
     /// ½P_vv]`, then with `RANGE` `[Σ Re B*B_t, ½P_ut, ½P_vt, ½P_tt]` (0 without).
+    #[inline(always)]
     fn bin_sums<const RANGE: bool>(&self) -> [f64; 10] {
         let padded = self.padded;
         let s = |acc: usize| -> (&[f32], &[f32]) {
@@ -544,7 +545,7 @@ struct Evaluate<'a> {
     at: At<'a>,
 }
 
-impl super::simd::Kernel for Evaluate<'_> {
+impl crate::simd::Kernel for Evaluate<'_> {
     type Output = Local;
 
     #[inline(always)]

@@ -59,8 +59,8 @@ pub struct SearchTables {
     generation: u32,
     /// Counters since last read: searches, cells opened, fine points evaluated.
     pub(super) counters: [usize; 3],
-    /// The CPU's vector instructions (see [`super::simd`]).
-    arch: pulp::Arch,
+    /// The CPU's vector instructions (see [`crate::simd`]).
+    pub(super) arch: pulp::Arch,
 }
 
 /// Which fine points are excluded (too close to an earlier potential).
@@ -331,7 +331,7 @@ impl SearchTables {
         max_cells: usize,
         exclusion: &Exclusion<'_>,
     ) -> Option<(usize, f32)> {
-        super::simd::run(self.arch, Hierarchical { tables: self, lin, cc_max, max_cells, exclusion })
+        crate::simd::run(self.arch, Hierarchical { tables: self, lin, cc_max, max_cells, exclusion })
     }
 
     #[inline(always)]
@@ -473,7 +473,7 @@ struct Hierarchical<'a, 'e> {
     exclusion: &'a Exclusion<'e>,
 }
 
-impl super::simd::Kernel for Hierarchical<'_, '_> {
+impl crate::simd::Kernel for Hierarchical<'_, '_> {
     type Output = Option<(usize, f32)>;
 
     #[inline(always)]

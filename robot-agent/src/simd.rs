@@ -1,4 +1,4 @@
-//! The hot loops of the localizer, compiled for the CPU's widest vector
+//! The agent's hot loops (localizer, signatures), compiled for the CPU's widest vector
 //! instructions as well as for the baseline, and run in the best version the
 //! CPU has (runtime detection by `pulp`, no `unsafe` here).
 //!
