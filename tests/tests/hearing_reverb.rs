@@ -27,7 +27,7 @@ use realfft::RealFftPlanner;
 use soundmap_agent::array::ArrayGeometry;
 use soundmap_agent::pipeline::{Pipeline, PipelineConfig};
 use soundmap_proto::Stamp;
-use soundmap_sim::acoustics::{RirConfig, RirModel, ShoeboxRoom};
+use soundmap_sim::acoustics::{RirConfig, RirModel, ShoeboxRoom, SourceSignal, Waveform, direct_path_rms};
 
 const FS: f64 = 16_000.0;
 /// Samples rendered and scored per case.
@@ -71,8 +71,8 @@ impl Case {
     }
 }
 
-/// `x` convolved with `h`, the `LEN` samples after the first `skip`.
-fn convolve(x: &[f64], h: &[f64], skip: usize) -> Vec<f64> {
+/// `x` convolved with `h`, the `len` samples after the first `skip`.
+fn convolve(x: &[f64], h: &[f64], skip: usize, len: usize) -> Vec<f64> {
     let n = (x.len() + h.len()).next_power_of_two();
     let mut planner = RealFftPlanner::<f64>::new();
     let (fwd, inv) = (planner.plan_fft_forward(n), planner.plan_fft_inverse(n));
@@ -87,12 +87,12 @@ fn convolve(x: &[f64], h: &[f64], skip: usize) -> Vec<f64> {
     let mut prod: Vec<_> = xs.iter().zip(&hs).map(|(a, b)| a * b / n as f64).collect();
     let mut out = vec![0.0; n];
     inv.process(&mut prod, &mut out).unwrap();
-    out[skip..skip + LEN].to_vec()
+    out[skip..skip + len].to_vec()
 }
 
-/// Per-frame angular errors (degrees) of the strongest potential for `case`
-/// heard by `array`, with (`reflections`) or without the room's reflections.
-fn frame_errors(array: &ArrayGeometry, config: &PipelineConfig, case: &Case, reflections: bool) -> Vec<f64> {
+/// The microphones of `array` placed as `case` says, and the room's
+/// impulse-response model (with `reflections`, or the direct path only).
+fn room_and_mics(array: &ArrayGeometry, case: &Case, reflections: bool) -> (RirModel, Vec<Point3<f64>>) {
     let room = ShoeboxRoom::from_rt60(Point3::origin(), case.size, case.rt60_s).unwrap();
     let rir = RirConfig {
         length_s: if reflections { case.rt60_s } else { 0.05 },
@@ -102,15 +102,56 @@ fn frame_errors(array: &ArrayGeometry, config: &PipelineConfig, case: &Case, ref
     };
     let model = RirModel::new(&room, &rir).unwrap();
     let rot = Rotation3::from_axis_angle(&Vector3::z_axis(), case.yaw);
-    let mics: Vec<Point3<f64>> = array.positions().map(|p| case.array_at + rot * p.coords).collect();
-    let mut rng = ChaCha8Rng::seed_from_u64(case.seed ^ 0x5eed);
+    (model, array.positions().map(|p| case.array_at + rot * p.coords).collect())
+}
+
+/// Each microphone's `len` samples of the source signal `s` (the room's
+/// response length `model.len()` of it first, to fill the room).
+fn hear(model: &RirModel, mics: &[Point3<f64>], case: &Case, s: &[f64], len: usize) -> Vec<Vec<f64>> {
     let skip = model.len();
-    let s: Vec<f64> = (0..skip + LEN).map(|_| rng.sample(StandardNormal)).collect();
-    let mut x: Vec<Vec<f64>> = mics
-        .iter()
+    mics.iter()
         .enumerate()
-        .map(|(i, m)| convolve(&s, &model.impulse_response(&case.source, m, case.seed * 64 + i as u64), skip))
-        .collect();
+        .map(|(i, m)| {
+            convolve(s, &model.impulse_response(&case.source, m, case.seed * 64 + i as u64), skip, len)
+        })
+        .collect()
+}
+
+/// The direct-path direction to the source in the array frame.
+fn truth(case: &Case) -> Vector3<f64> {
+    let rot = Rotation3::from_axis_angle(&Vector3::z_axis(), case.yaw);
+    rot.inverse() * (case.source - case.array_at).normalize()
+}
+
+/// Runs the pipeline over the channels `x`, calling `each` with every hop's
+/// result and the hop's start (s).
+fn run_pipeline(
+    array: &ArrayGeometry,
+    config: &PipelineConfig,
+    x: &[Vec<f64>],
+    mut each: impl FnMut(&soundmap_agent::pipeline::FrameResult, f64),
+) {
+    let mut p = Pipeline::new(array, config).unwrap();
+    let (hop, ch) = (p.hop_len(), p.channels());
+    let mut block = vec![0f32; hop * ch];
+    for h in 0..x[0].len() / hop {
+        for t in 0..hop {
+            for (c, xc) in x.iter().enumerate() {
+                block[t * ch + c] = xc[h * hop + t] as f32;
+            }
+        }
+        let r = p.process_hop(Stamp::from_ns(h as i64 * 8_000_000), &block);
+        each(r, (h * hop) as f64 / FS);
+    }
+}
+
+/// Per-frame angular errors (degrees) of the strongest potential for `case`
+/// heard by `array`, with (`reflections`) or without the room's reflections.
+fn frame_errors(array: &ArrayGeometry, config: &PipelineConfig, case: &Case, reflections: bool) -> Vec<f64> {
+    let (model, mics) = room_and_mics(array, case, reflections);
+    let mut rng = ChaCha8Rng::seed_from_u64(case.seed ^ 0x5eed);
+    let s: Vec<f64> = (0..model.len() + LEN).map(|_| rng.sample(StandardNormal)).collect();
+    let mut x = hear(&model, &mics, case, &s, LEN);
     let power = x.iter().flatten().map(|v| v * v).sum::<f64>() / (x.len() * LEN) as f64;
     let noise = 0.1 * power.sqrt();
     let gain = 0.1 / power.sqrt();
@@ -119,24 +160,15 @@ fn frame_errors(array: &ArrayGeometry, config: &PipelineConfig, case: &Case, ref
             *v = (*v + noise * rng.sample::<f64, _>(StandardNormal)) * gain;
         }
     }
-    let truth = rot.inverse() * (case.source - case.array_at).normalize();
-    let mut p = Pipeline::new(array, config).unwrap();
-    let (hop, ch) = (p.hop_len(), p.channels());
-    let mut block = vec![0f32; hop * ch];
+    let truth = truth(case);
     let mut errors = Vec::new();
-    for h in 0..LEN / hop {
-        for t in 0..hop {
-            for (c, xc) in x.iter().enumerate() {
-                block[t * ch + c] = xc[h * hop + t] as f32;
-            }
-        }
-        let r = p.process_hop(Stamp::from_ns(h as i64 * 8_000_000), &block);
-        if (h * hop) as f64 >= SKIP_S * FS
+    run_pipeline(array, config, &x, |r, t| {
+        if t >= SKIP_S
             && let Some(best) = r.potentials.first()
         {
             errors.push(best.direction_in_array.dot(&truth).clamp(-1.0, 1.0).acos().to_degrees());
         }
-    }
+    });
     errors
 }
 
@@ -263,4 +295,137 @@ fn sweep() {
         let f = run_set(preset, 0.65, 12, false, 1000);
         print_row(preset, 0.65, false, &f);
     }
+}
+
+// ---------------------------------------------------------------------------
+// A robot in a corner.
+//
+// The Pioneer array `d` m from two walls of a 10 × 8 × 3 m room (RT60
+// 0.5 s), 0.45 m above the floor with a random yaw; a static source 4–6 m
+// away, 1.2–1.7 m high, at least 0.5 m from the walls; 6 s each. The source
+// is white noise or a talker (300–3400 Hz band noise under a 4.5 Hz syllabic
+// envelope with pauses, as in the scenarios). The microphones' own noise is
+// fixed: 25 dB below the direct path of the source at 3 m, as in the
+// distance sweep, so a farther source is heard closer to the noise. The
+// pipeline runs with its defaults; every hop after the first second is
+// scored by the agent's *confirmed* tracks (what it would report):
+// - on the source: a confirmed track within 10° of the direct path;
+// - astray: a confirmed track more than 20° from it (a wall's image, or
+//   noise).
+// With the source silent (the microphones' noise alone), every confirmed
+// track is astray.
+
+/// Seconds rendered per corner case, and the first second not scored.
+const CORNER_S: f64 = 6.0;
+const CORNER_SKIP_S: f64 = 1.0;
+
+/// What the corner case's source emits.
+#[derive(Clone, Copy, Debug, PartialEq)]
+enum Emission {
+    White,
+    Talker,
+    Silent,
+}
+
+/// The corner case `seed` with the array `from_walls_m` from two walls.
+fn corner_case(from_walls_m: f64, seed: u64) -> Case {
+    let mut rng = ChaCha8Rng::seed_from_u64(seed);
+    let size = Vector3::new(10.0, 8.0, 3.0);
+    let array_at = Point3::new(from_walls_m, from_walls_m, 0.45);
+    loop {
+        let (r, az) = (rng.random_range(4.0..6.0), rng.random_range(0.0..std::f64::consts::FRAC_PI_2));
+        let h: f64 = rng.random_range(1.2..1.7);
+        let dz = h - array_at.z;
+        let horizontal = (r * r - dz * dz).sqrt();
+        let source = Point3::new(array_at.x + horizontal * az.cos(), array_at.y + horizontal * az.sin(), h);
+        if (0..2).all(|a| source[a] > 0.5 && source[a] < size[a] - 0.5) {
+            let yaw = rng.random_range(0.0..std::f64::consts::TAU);
+            return Case { size, rt60_s: 0.5, array_at, yaw, source, seed };
+        }
+    }
+}
+
+/// Fractions of the scored hops with a confirmed track on the source and
+/// with one astray.
+#[derive(Clone, Copy, Debug)]
+struct CornerFigures {
+    on_source: f64,
+    astray: f64,
+}
+
+fn corner_hops(case: &Case, emission: Emission) -> CornerFigures {
+    use soundmap_sim::acoustics::signals::SignalGenerator;
+    let array = ArrayGeometry::load("16soundsusb-pioneer").unwrap();
+    let (model, mics) = room_and_mics(&array, case, true);
+    let len = (CORNER_S * FS) as usize;
+    let mut s = vec![0f32; model.len() + len];
+    let waveform = match emission {
+        Emission::White | Emission::Silent => Waveform::WhiteNoise,
+        Emission::Talker => Waveform::Talker { low_hz: 300.0, high_hz: 3400.0, syllable_hz: 4.5 },
+    };
+    let signal = SourceSignal { waveform, ..SourceSignal::white_noise(1.0, case.seed) };
+    SignalGenerator::new(&signal, FS).unwrap().fill(0, &mut s);
+    let on = if emission == Emission::Silent { 0.0 } else { 1.0 };
+    let s: Vec<f64> = s.iter().map(|&v| on * v as f64).collect();
+    let mut x = hear(&model, &mics, case, &s, len);
+    let noise = direct_path_rms(1.0, 3.0) * 10f64.powf(-25.0 / 20.0);
+    let mut rng = ChaCha8Rng::seed_from_u64(case.seed ^ 0xc0de);
+    for v in x.iter_mut().flatten() {
+        *v += noise * rng.sample::<f64, _>(StandardNormal);
+    }
+    let truth = truth(case);
+    let (mut hops, mut on_source, mut astray) = (0usize, 0usize, 0usize);
+    run_pipeline(&array, &PipelineConfig::default(), &x, |r, t| {
+        if t < CORNER_SKIP_S {
+            return;
+        }
+        hops += 1;
+        let angle = |d: &nalgebra::Unit<Vector3<f64>>| d.dot(&truth).clamp(-1.0, 1.0).acos().to_degrees();
+        let confirmed = || r.tracks.iter().filter(|k| k.confirmed);
+        on_source += confirmed().any(|k| angle(&k.direction_in_array) <= 10.0) as usize;
+        astray +=
+            confirmed().any(|k| emission == Emission::Silent || angle(&k.direction_in_array) > 20.0) as usize;
+    });
+    CornerFigures { on_source: on_source as f64 / hops as f64, astray: astray as f64 / hops as f64 }
+}
+
+fn print_corner(
+    label: &str,
+    from_walls_m: f64,
+    emission: Emission,
+    seeds: std::ops::Range<u64>,
+) -> Vec<CornerFigures> {
+    let figures: Vec<CornerFigures> =
+        seeds.clone().map(|k| corner_hops(&corner_case(from_walls_m, k), emission)).collect();
+    let list = |f: &dyn Fn(&CornerFigures) -> f64| {
+        figures.iter().map(|c| format!("{:.0}", 100.0 * f(c))).collect::<Vec<_>>().join(" ")
+    };
+    println!(
+        "{label:<28} {from_walls_m:>4.1} m  {emission:<7?} seeds {seeds:?}: on source % [{}]  astray % [{}]",
+        list(&|c| c.on_source),
+        list(&|c| c.astray)
+    );
+    figures
+}
+
+/// The sweep: `cargo test -p soundmap-sim --test hearing_reverb corner_sweep -- --ignored --nocapture`.
+#[test]
+#[ignore = "about a minute; run with --ignored --nocapture"]
+fn corner_sweep() {
+    for (label, d) in [("corner", 1.0), ("1.5 m further out", 2.5)] {
+        for emission in [Emission::Talker, Emission::White, Emission::Silent] {
+            print_corner(label, d, emission, 1..9);
+        }
+    }
+}
+
+/// CI subset of the corner: white noise heard on the source nearly every
+/// hop, nothing confirmed on the microphones' noise alone (two seeds each;
+/// the talker's figures, which miss the ≥ 80 % target, are in BENCHMARKS.md).
+#[test]
+fn robot_in_a_corner_hears_the_source_and_not_the_noise() {
+    let white = print_corner("corner", 1.0, Emission::White, 1..3);
+    let silent = print_corner("corner", 1.0, Emission::Silent, 1..3);
+    assert!(white.iter().all(|c| c.on_source >= 0.9 && c.astray == 0.0), "{white:?}");
+    assert!(silent.iter().all(|c| c.astray == 0.0), "{silent:?}");
 }
