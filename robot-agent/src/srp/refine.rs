@@ -221,42 +221,20 @@ impl Refiner {
         [a * ic, b * ic / s, c * ic / s, dk * ic / self.range_scale, x * ic / s]
     }
 
-    /// Power, gradient and Hessian at `d` in the basis `(e1, e2)`, with
-    /// microphone gains `gains` (all 1 for omnidirectional microphones), for
-    /// a wavefront at scaled inverse range `t` (see the module docs); with
-    /// `with_range` the derivatives in `t` are computed too.
+    /// Power, gradient and Hessian at `at.d` in the basis `(at.e1, at.e2)`,
+    /// with microphone gains `gains` (all 1 for omnidirectional microphones),
+    /// for a wavefront at scaled inverse range `at.t` (see the module docs);
+    /// with `at.with_range` the derivatives in `t` are computed too.
     ///
-    /// With `curvature = false` the coordinates are linear, `d + u e₁ + v e₂`
+    /// With `at.curvature = false` the coordinates are linear, `d + u e₁ + v e₂`
     /// (used for planar arrays, whose delays only see the in-plane part of `d`).
-    #[allow(clippy::too_many_arguments)]
-    pub fn local(
-        &mut self,
-        cc: &CrossCorrelator,
-        d: &Vector3<f64>,
-        e1: &Vector3<f64>,
-        e2: &Vector3<f64>,
-        gains: &[f32],
-        curvature: bool,
-        t: f64,
-        with_range: bool,
-    ) -> Local {
-        let at = At { d, e1, e2, curvature, t, with_range };
+    pub fn local(&mut self, cc: &CrossCorrelator, gains: &[f32], at: At<'_>) -> Local {
         crate::simd::run(self.arch, Evaluate { refiner: self, cc, gains, at })
     }
 
-    #[allow(clippy::too_many_arguments)]
     #[inline(always)]
-    fn local_body(
-        &mut self,
-        cc: &CrossCorrelator,
-        d: &Vector3<f64>,
-        e1: &Vector3<f64>,
-        e2: &Vector3<f64>,
-        gains: &[f32],
-        curvature: bool,
-        t: f64,
-        with_range: bool,
-    ) -> Local {
+    fn local_body(&mut self, cc: &CrossCorrelator, gains: &[f32], at: At<'_>) -> Local {
+        let At { d, e1, e2, curvature, t, with_range } = at;
         self.evaluations += 1;
         let padded = self.padded;
         let accs = if with_range { ACCS } else { 7 };
@@ -386,7 +364,7 @@ impl Refiner {
         };
         let evaluate = |this: &mut Self, d: &Unit<Vector3<f64>>, t: f64, with_range: bool| {
             let (e1, e2) = tangent_basis(d);
-            this.local(cc, d, &e1, &e2, gains, true, t, with_range)
+            this.local(cc, gains, At { d, e1: &e1, e2: &e2, curvature: true, t, with_range })
         };
         let (d, t, cur) = self.ascend(d0, bound, iterations, max_step_rad, apply, evaluate);
         (d, t / self.range_scale, cur)
@@ -420,7 +398,7 @@ impl Refiner {
         };
         let apply = |h: &[f64; 2], step: [f64; 2]| [h[0] + step[0], h[1] + step[1]];
         let evaluate = |this: &mut Self, h: &[f64; 2], t: f64, with_range: bool| {
-            this.local(cc, &lift(*h), &e1, &e2, gains, false, t, with_range)
+            this.local(cc, gains, At { d: &lift(*h), e1: &e1, e2: &e2, curvature: false, t, with_range })
         };
         let h0 = [e1.dot(&d0), e2.dot(&d0)];
         let (h, t, cur) = self.ascend(h0, bound, iterations, max_step, apply, evaluate);
@@ -527,14 +505,23 @@ impl Refiner {
     }
 }
 
-/// Where [`Refiner::local`] evaluates.
-struct At<'a> {
-    d: &'a Vector3<f64>,
-    e1: &'a Vector3<f64>,
-    e2: &'a Vector3<f64>,
-    curvature: bool,
-    t: f64,
-    with_range: bool,
+/// Where [`Refiner::local`] evaluates: direction `d`, tangent basis
+/// `(e1, e2)`, curved (sphere) or linear (plane) coordinates, scaled inverse
+/// range `t`, and whether the derivatives in `t` are wanted.
+#[derive(Clone, Copy, Debug)]
+pub struct At<'a> {
+    /// The direction.
+    pub d: &'a Vector3<f64>,
+    /// First tangent axis.
+    pub e1: &'a Vector3<f64>,
+    /// Second tangent axis.
+    pub e2: &'a Vector3<f64>,
+    /// Tangent coordinates on the sphere (`false`: linear, `d + u e₁ + v e₂`).
+    pub curvature: bool,
+    /// Scaled inverse range.
+    pub t: f64,
+    /// Derivatives in `t` too.
+    pub with_range: bool,
 }
 
 /// [`Refiner::local`] as a vectorized kernel.
@@ -550,8 +537,7 @@ impl crate::simd::Kernel for Evaluate<'_> {
 
     #[inline(always)]
     fn run(self) -> Local {
-        let At { d, e1, e2, curvature, t, with_range } = self.at;
-        self.refiner.local_body(self.cc, d, e1, e2, self.gains, curvature, t, with_range)
+        self.refiner.local_body(self.cc, self.gains, self.at)
     }
 }
 
