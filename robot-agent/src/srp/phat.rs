@@ -68,7 +68,7 @@ pub struct CrossCorrelator {
     pub(super) cc_max: Vec<f32>,
     pub(super) window: Vec<usize>,
     tmp: Vec<f32>,
-    /// The CPU's vector instructions (see [`super::simd`]).
+    /// The CPU's vector instructions (see [`crate::simd`]).
     pub(super) arch: pulp::Arch,
 }
 
