@@ -27,7 +27,9 @@ use realfft::RealFftPlanner;
 use soundmap_agent::array::ArrayGeometry;
 use soundmap_agent::pipeline::{Pipeline, PipelineConfig};
 use soundmap_proto::Stamp;
-use soundmap_sim::acoustics::{RirConfig, RirModel, ShoeboxRoom, SourceSignal, Waveform, direct_path_rms};
+use soundmap_sim::acoustics::{
+    RirConfig, RirModel, ShoeboxRoom, SourceSignal, Waveform, direct_path_rms, noise_std_for_snr,
+};
 
 const FS: f64 = 16_000.0;
 /// Samples rendered and scored per case.
@@ -69,6 +71,11 @@ impl Case {
             }
         }
     }
+
+    /// The array's yaw as a rotation (array frame → room).
+    fn rotation(&self) -> Rotation3<f64> {
+        Rotation3::from_axis_angle(&Vector3::z_axis(), self.yaw)
+    }
 }
 
 /// `x` convolved with `h`, the `len` samples after the first `skip`.
@@ -101,7 +108,7 @@ fn room_and_mics(array: &ArrayGeometry, case: &Case, reflections: bool) -> (RirM
         ..RirConfig::default()
     };
     let model = RirModel::new(&room, &rir).unwrap();
-    let rot = Rotation3::from_axis_angle(&Vector3::z_axis(), case.yaw);
+    let rot = case.rotation();
     (model, array.positions().map(|p| case.array_at + rot * p.coords).collect())
 }
 
@@ -119,8 +126,7 @@ fn hear(model: &RirModel, mics: &[Point3<f64>], case: &Case, s: &[f64], len: usi
 
 /// The direct-path direction to the source in the array frame.
 fn truth(case: &Case) -> Vector3<f64> {
-    let rot = Rotation3::from_axis_angle(&Vector3::z_axis(), case.yaw);
-    rot.inverse() * (case.source - case.array_at).normalize()
+    case.rotation().inverse() * (case.source - case.array_at).normalize()
 }
 
 /// Runs the pipeline over the channels `x`, calling `each` with every hop's
@@ -358,17 +364,22 @@ fn corner_hops(case: &Case, emission: Emission) -> CornerFigures {
     let array = ArrayGeometry::load("16soundsusb-pioneer").unwrap();
     let (model, mics) = room_and_mics(&array, case, true);
     let len = (CORNER_S * FS) as usize;
-    let mut s = vec![0f32; model.len() + len];
     let waveform = match emission {
-        Emission::White | Emission::Silent => Waveform::WhiteNoise,
-        Emission::Talker => Waveform::Talker { low_hz: 300.0, high_hz: 3400.0, syllable_hz: 4.5 },
+        Emission::White => Some(Waveform::WhiteNoise),
+        Emission::Talker => Some(Waveform::Talker { low_hz: 300.0, high_hz: 3400.0, syllable_hz: 4.5 }),
+        Emission::Silent => None,
     };
-    let signal = SourceSignal { waveform, ..SourceSignal::white_noise(1.0, case.seed) };
-    SignalGenerator::new(&signal, FS).unwrap().fill(0, &mut s);
-    let on = if emission == Emission::Silent { 0.0 } else { 1.0 };
-    let s: Vec<f64> = s.iter().map(|&v| on * v as f64).collect();
-    let mut x = hear(&model, &mics, case, &s, len);
-    let noise = direct_path_rms(1.0, 3.0) * 10f64.powf(-25.0 / 20.0);
+    let mut x = match waveform {
+        // The microphones' noise alone: nothing to render.
+        None => vec![vec![0.0; len]; mics.len()],
+        Some(waveform) => {
+            let mut s = vec![0f32; model.len() + len];
+            let signal = SourceSignal { waveform, ..SourceSignal::white_noise(1.0, case.seed) };
+            SignalGenerator::new(&signal, FS).unwrap().fill(0, &mut s);
+            hear(&model, &mics, case, &s.iter().map(|&v| f64::from(v)).collect::<Vec<_>>(), len)
+        }
+    };
+    let noise = noise_std_for_snr(direct_path_rms(1.0, 3.0), 25.0);
     let mut rng = ChaCha8Rng::seed_from_u64(case.seed ^ 0xc0de);
     for v in x.iter_mut().flatten() {
         *v += noise * rng.sample::<f64, _>(StandardNormal);
