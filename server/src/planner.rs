@@ -516,20 +516,11 @@ impl Planner {
             // just inside the band (a robot backs out because the source is
             // coming at it, so the next lead matters too).
             let outside_band_deg = |q: &Point2<f64>| {
+                let mut at = destination.clone();
+                at[i] = *q;
                 [ahead, later]
                     .iter()
-                    .map(|at_source| {
-                        let sensors: Vec<Sensor> = robots
-                            .iter()
-                            .enumerate()
-                            .map(|(j, r)| {
-                                let at = if j == i { *q } else { destination[j] };
-                                sensor_at(&at, at_source, &r.base_from_array, r.sigma_rad)
-                            })
-                            .collect();
-                        let theta = assess(&sensors, at_source).theta_deg;
-                        (cfg.theta_min_deg - theta).max(theta - cfg.theta_max_deg).max(0.0)
-                    })
+                    .map(|src| self.degrees_out_of_band(src, robots, &at))
                     .fold(0.0, f64::max)
             };
             let sep = cfg.min_separation_m;

@@ -158,7 +158,12 @@ impl Planner {
     }
 
     /// Degrees by which the best pairwise θ at `spots` lies outside the band (0 inside).
-    fn degrees_out_of_band(&self, src: &Point3<f64>, robots: &[RobotState], spots: &[Point2<f64>]) -> f64 {
+    pub(super) fn degrees_out_of_band(
+        &self,
+        src: &Point3<f64>,
+        robots: &[RobotState],
+        spots: &[Point2<f64>],
+    ) -> f64 {
         let sensors: Vec<_> = robots
             .iter()
             .zip(spots)
