@@ -27,36 +27,55 @@ use soundmap_sim::scenario::Scenario;
 /// The source, away from the room's centre so that both robots stay ≥ 1.5 m from the walls at 6 m.
 const SOURCE: [f64; 3] = [2.0, 1.5, 1.2];
 
-/// The sweep's source and model settings from the environment (module docs).
-fn environment() -> (String, f64, Option<f64>) {
-    let var = |name: &str| std::env::var(name).ok();
-    let signal = match var("SOUNDMAP_DISTANCE_SIGNAL").as_deref() {
-        None | Some("white") => "{ kind = \"white_noise\" }".to_string(),
-        Some("band") => "{ kind = \"band_noise\", low_hz = 300.0, high_hz = 3400.0 }".to_string(),
-        Some("talker") => {
-            "{ kind = \"talker\", low_hz = 300.0, high_hz = 3400.0, syllable_hz = 5.0 }".to_string()
+/// The source the sweep runs: its signal (a scenario `signal = …` value),
+/// height (m) and the ceiling the coordinator's model is told (m; `None`: the room's).
+#[derive(Clone, Debug)]
+struct Source {
+    signal: String,
+    height_m: f64,
+    ceiling_m: Option<f64>,
+}
+
+/// The variables that change the sweep's source (module docs).
+const SOURCE_VARIABLES: [&str; 3] =
+    ["SOUNDMAP_DISTANCE_SIGNAL", "SOUNDMAP_DISTANCE_SOURCE_HEIGHT", "SOUNDMAP_DISTANCE_CEILING"];
+
+impl Source {
+    /// The sweep's own source: white noise at `SOURCE`, the room's ceiling.
+    fn white() -> Self {
+        Source { signal: "{ kind = \"white_noise\" }".to_string(), height_m: SOURCE[2], ceiling_m: None }
+    }
+
+    /// The source the environment asks for, `None` when it sets none of
+    /// [`SOURCE_VARIABLES`].
+    fn from_environment() -> Option<Self> {
+        let var = |name: &str| std::env::var(name).ok();
+        if SOURCE_VARIABLES.iter().all(|v| var(v).is_none()) {
+            return None;
         }
-        Some(other) => panic!("SOUNDMAP_DISTANCE_SIGNAL: {other} is not white, band or talker"),
-    };
-    let number =
-        |name: &str| var(name).map(|v| v.parse::<f64>().unwrap_or_else(|e| panic!("{name}: {v}: {e}")));
-    (
-        signal,
-        number("SOUNDMAP_DISTANCE_SOURCE_HEIGHT").unwrap_or(SOURCE[2]),
-        number("SOUNDMAP_DISTANCE_CEILING"),
-    )
+        let signal = match var("SOUNDMAP_DISTANCE_SIGNAL").as_deref() {
+            None | Some("white") => Source::white().signal,
+            Some("band") => "{ kind = \"band_noise\", low_hz = 300.0, high_hz = 3400.0 }".to_string(),
+            Some("talker") => {
+                "{ kind = \"talker\", low_hz = 300.0, high_hz = 3400.0, syllable_hz = 5.0 }".to_string()
+            }
+            Some(other) => panic!("SOUNDMAP_DISTANCE_SIGNAL: {other} is not white, band or talker"),
+        };
+        let number =
+            |name: &str| var(name).map(|v| v.parse::<f64>().unwrap_or_else(|e| panic!("{name}: {v}: {e}")));
+        Some(Source {
+            signal,
+            height_m: number("SOUNDMAP_DISTANCE_SOURCE_HEIGHT").unwrap_or(SOURCE[2]),
+            ceiling_m: number("SOUNDMAP_DISTANCE_CEILING"),
+        })
+    }
 }
 
-/// Whether the sweep runs its own source (and asserts its targets).
-fn default_environment() -> bool {
-    ["SOUNDMAP_DISTANCE_SIGNAL", "SOUNDMAP_DISTANCE_SOURCE_HEIGHT", "SOUNDMAP_DISTANCE_CEILING"]
-        .iter()
-        .all(|v| std::env::var(v).is_err())
-}
-
-fn scenario(distance_m: f64, seed: u64, (signal, z, ceiling): &(String, f64, Option<f64>)) -> Scenario {
+fn scenario(distance_m: f64, seed: u64, source: &Source) -> Scenario {
     let [x, y, _] = SOURCE;
-    let ceiling = ceiling.map_or(String::new(), |h| format!("[coordinator.doa]\nceiling_height_m = {h}\n"));
+    let (signal, z) = (&source.signal, source.height_m);
+    let ceiling =
+        source.ceiling_m.map_or(String::new(), |h| format!("[coordinator.doa]\nceiling_height_m = {h}\n"));
     let text = format!(
         r#"name = "distance-{distance_m}"
 description = "two robots at 90 degrees, {distance_m} m from a white-noise source (14 x 12 m room, RT60 0.5 s)"
@@ -107,8 +126,8 @@ struct Figures {
     nees_above_99: Option<f64>,
 }
 
-fn measure(distance_m: f64, seed: u64, env: &(String, f64, Option<f64>)) -> Figures {
-    let record: RunRecord = run(&scenario(distance_m, seed, env), &RunOptions::default()).unwrap();
+fn measure(distance_m: f64, seed: u64, source: &Source) -> Figures {
+    let record: RunRecord = run(&scenario(distance_m, seed, source), &RunOptions::default()).unwrap();
     let s = Summary::new(&record, &Derived::new(&record));
     let dz: Vec<f64> =
         record.rows.iter().filter_map(|r| Some(r.estimate_in_map?.z - r.truth_in_map?.z)).collect();
@@ -146,7 +165,7 @@ const HEADER: &str = "| distance | seed | estimates | RSE median | RSE p95 | mea
 fn near_and_far_sources_are_located() {
     println!("{HEADER}");
     for d in [2.0, 6.0] {
-        let f = measure(d, 1, &("{ kind = \"white_noise\" }".to_string(), SOURCE[2], None));
+        let f = measure(d, 1, &Source::white());
         row(d, 1, &f);
         assert!(f.estimates > 100, "{d} m: {f:?}");
         assert!(f.rse_median_m.is_some_and(|m| m <= 0.2), "{d} m: {f:?}");
@@ -157,12 +176,16 @@ fn near_and_far_sources_are_located() {
 #[test]
 #[ignore = "sweep: 2-6 m x seeds 1-3, a few minutes"]
 fn sweep_over_distance() {
-    let env = environment();
-    println!("source {} at {} m, ceiling in the model {:?}\n{HEADER}", env.0, env.1, env.2);
+    let chosen = Source::from_environment();
+    let source = chosen.clone().unwrap_or_else(Source::white);
+    println!(
+        "source {} at {} m, ceiling in the model {:?}\n{HEADER}",
+        source.signal, source.height_m, source.ceiling_m
+    );
     let mut missed = Vec::new();
     for d in [2.0, 3.0, 4.0, 5.0, 6.0] {
         for seed in 1..=3 {
-            let f = measure(d, seed, &env);
+            let f = measure(d, seed, &source);
             row(d, seed, &f);
             if f.nees_mean_trusted.is_some_and(|n| n > 5.0) {
                 missed.push(format!("{d} m seed {seed}: trusted NEES {:.1}", f.nees_mean_trusted.unwrap()));
@@ -172,7 +195,7 @@ fn sweep_over_distance() {
             }
         }
     }
-    if default_environment() {
+    if chosen.is_none() {
         assert!(missed.is_empty(), "targets missed: {missed:?}");
     } else if !missed.is_empty() {
         println!("(not asserted for this source) targets missed: {missed:?}");
