@@ -73,6 +73,10 @@ use pose::sensor_at;
 
 use crate::uncertainty::{Sensor, assess};
 
+/// Clearances an ordinary goal's push out of the keep-out tries, from the
+/// full margin down to a quarter of it, the first the constraints allow.
+const PUSH_TRIES: usize = 4;
+
 /// The placement planner: configuration, free space, hysteresis memory and cadence.
 #[derive(Clone, Debug)]
 pub struct Planner {
@@ -421,31 +425,38 @@ impl Planner {
             goals = out;
         }
         // Ordinary goals keep the served source's keep-out around its
-        // estimate, often right at its edge: pushed out by the estimate's
-        // horizontal 1-σ (at most `keep_out_margin_m`), so that an estimate a
-        // few centimetres off does not put them inside the true source's.
+        // estimate, often right at its edge: pushed straight out by twice the
+        // estimate's horizontal 1-σ (at most `keep_out_margin_m`), so that an
+        // estimate off by about that much does not put them inside the true
+        // source's (see [`escape`]).
         let (served, _) = keeps[0];
-        let sigma =
-            escape::horizontal_sigma_m(&input.source.covariance_m2).min(self.config.keep_out_margin_m);
-        // Only where the pushed spot keeps the cycle's hard constraints: the
-        // step, the largest range, free space, the other keep-outs and the
-        // separation from where the other robots are going.
+        let margin = (2.0 * escape::horizontal_sigma_m(&input.source.covariance_m2))
+            .min(self.config.keep_out_margin_m);
+        // As far as the cycle's hard constraints allow: the step, the largest
+        // range, free space, the other keep-outs and the separation from
+        // where the other robots are going (a via point already a full step
+        // away is pushed less, not left at the edge).
         let cfg = &self.config;
         let before_push = ends(&input.robots, &goals);
         for g in goals.iter_mut().filter(|g| g.reason != RepositionReason::KeepOut) {
             let q = xy_of(&g.map_from_base);
             let p0 = input.robots[g.robot].base_xy();
-            let Some(out) = escape::push_out(&served, &q, served.radius_m + sigma) else { continue };
             let centre = Point2::new(g.look_at_in_map.x, g.look_at_in_map.y);
-            let keeps_constraints = (out - p0).norm() <= cfg.step_m()
-                && (out - centre).norm() <= cfg.max_range_m
-                && self.free.is_free(&out)
-                && escape::clear_of(&keeps[1..], &out, 0.0)
-                && before_push
-                    .iter()
-                    .enumerate()
-                    .all(|(j, e)| j == g.robot || (out - e).norm() >= cfg.min_separation_m);
-            if keeps_constraints {
+            let allowed = |out: &Point2<f64>| {
+                (out - p0).norm() <= cfg.step_m()
+                    && (out - centre).norm() <= cfg.max_range_m
+                    && self.free.is_free(out)
+                    && escape::clear_of(&keeps[1..], out, 0.0)
+                    && before_push
+                        .iter()
+                        .enumerate()
+                        .all(|(j, e)| j == g.robot || (out - e).norm() >= cfg.min_separation_m)
+            };
+            let pushed = (0..PUSH_TRIES)
+                .map(|k| served.radius_m + margin * (PUSH_TRIES - k) as f64 / PUSH_TRIES as f64)
+                .filter_map(|clearance| escape::push_out(&served, &q, clearance))
+                .find(allowed);
+            if let Some(out) = pushed {
                 g.map_from_base = pose::facing_pose(&out, &g.look_at_in_map);
             }
         }

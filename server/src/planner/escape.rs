@@ -32,10 +32,19 @@
 //! there is none.
 //!
 //! Ordinary goals, planned around the estimate, often lie right at the
-//! keep-out's edge; they are pushed straight out by the estimate's
-//! horizontal 1-σ (at most `keep_out_margin_m`), a few centimetres that
-//! keep them outside the true source's keep-out when the estimate is off by
-//! about that much, without changing the geometry planned.
+//! keep-out's edge; they are pushed straight out by twice the estimate's
+//! horizontal 1-σ (at most `keep_out_margin_m`): a few centimetres to 0.3 m
+//! that keep them outside the true source's keep-out unless the estimate is
+//! off by more than 2σ_h (14 % of the time for an honest covariance), without
+//! changing the geometry planned. Where the full push would break one of the
+//! cycle's constraints (a via point already a full step away, the largest
+//! range, free space, another keep-out, the separation) it is tried at ¾, ½
+//! and ¼ of the margin before the goal is left where it was. Over the start
+//! scenarios' 20-seed sweep (six scenarios, 120 runs) the goals issued within
+//! 1 m of the true source went from 18 (a 1-σ push, all or nothing) to 14
+//! (`fast-walker` 5 → 0; the rest in the talker scenarios, whose estimates
+//! are 0.5–1 m off at times, more than any margin here covers), with θ in
+//! band the same within a point on average per scenario.
 //!
 //! Among the spots on the nearest ring with a way out and the next three
 //! (0.3 m further at most), the planner takes the one whose formation leaves
