@@ -965,6 +965,8 @@ fn planner_cycle_timing() {
 /// within that margin, with it and without it (`keep_out_margin_m = 0`).
 #[test]
 fn ordinary_goals_keep_a_margin_for_the_estimates_error() {
+    // The margin asked for is the default's, with the push on and off.
+    let default_margin = PlannerConfig::default().keep_out_margin_m;
     let count = |margin_m: f64| {
         let mut cfg = room_config();
         cfg.keep_out_margin_m = margin_m;
@@ -985,7 +987,7 @@ fn ordinary_goals_keep_a_margin_for_the_estimates_error() {
             let out = planner.plan(Stamp::ZERO, &PlannerInput { source: estimate, robots, others: vec![] });
             let PlanOutcome::Planned(planned) = out else { continue };
             // The margin asked for, from scratch: σ_h of an isotropic σ is σ.
-            let want = cfg.min_range_m + (2.0 * sigma_m).min(0.3);
+            let want = cfg.min_range_m + (2.0 * sigma_m).min(default_margin);
             for g in planned.iter().filter(|g| g.reason != RepositionReason::KeepOut) {
                 goals += 1;
                 if (xy(&g.map_from_base) - Point2::new(src.x, src.y)).norm() < want - 1e-6 {
@@ -995,7 +997,7 @@ fn ordinary_goals_keep_a_margin_for_the_estimates_error() {
         }
         (near, goals)
     };
-    let with = count(0.3);
+    let with = count(default_margin);
     let without = count(0.0);
     eprintln!("goals within the margin: with it {with:?}, without it {without:?}");
     // Seed 7: 13 of 212 goals without the margin, 2 with it (both from the
