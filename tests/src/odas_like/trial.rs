@@ -63,6 +63,10 @@ pub struct ClosestPointRow {
     pub true_theta_deg: f64,
     /// Its error (m).
     pub rse_m: f64,
+    /// The closest point itself (map frame, m).
+    pub point: Point3<f64>,
+    /// The true source at that hop (map frame, m).
+    pub truth: Point3<f64>,
 }
 
 /// The files written and the comparison.
@@ -224,6 +228,8 @@ pub fn write_trial(dir: &Path, spec: &OdasTrialSpec) -> Result<OdasTrial, SimErr
                 t_s: t,
                 true_theta_deg: a.dot(&b).clamp(-1.0, 1.0).acos().to_degrees(),
                 rse_m: (p - s).norm(),
+                point: p,
+                truth: s,
             })
         })
         .collect();
