@@ -29,6 +29,7 @@ pub mod audio;
 pub mod config;
 pub mod doa_tracker;
 pub mod error;
+mod fastmath;
 pub mod link;
 pub mod live;
 pub mod localize;

@@ -33,7 +33,9 @@
 //! the microphone delays, `K × bins` beam buffers and `K × B` smoothed powers
 //! for the K reported tracks. [`Signatures::update`] allocates nothing: the
 //! phasors of each microphone are computed per hop from the direction by
-//! recursion over the bins (two `sin_cos` per microphone and 128 bins).
+//! recursion over the bins (two sines and cosines per microphone and 128 bins,
+//! branch-free polynomials in one vectorized pass, [`crate::fastmath`]; the
+//! decibels likewise).
 
 use nalgebra::Vector3;
 use realfft::num_complex::Complex;
@@ -165,6 +167,11 @@ pub struct Signatures {
     /// Scratch: one beam spectrum, real and imaginary parts, `padded` each.
     yr: Vec<[f32; LANES]>,
     yi: Vec<[f32; LANES]>,
+    /// Scratch per microphone: the phase step per bin `w` (rad), its
+    /// `(sin, cos)` and those of the first anchor `w·first_bin`.
+    w: Vec<f64>,
+    step: Vec<(f32, f32)>,
+    anchor: Vec<(f32, f32)>,
     /// The CPU's vector instructions (see [`crate::simd`]).
     arch: pulp::Arch,
 }
@@ -268,6 +275,9 @@ impl Signatures {
             xi: vec![[0.0; LANES]; m * padded / LANES],
             yr: vec![[0.0; LANES]; padded / LANES],
             yi: vec![[0.0; LANES]; padded / LANES],
+            w: vec![0.0; m],
+            step: vec![(0.0, 1.0); m],
+            anchor: vec![(0.0, 1.0); m],
             edges_hz,
             arch: pulp::Arch::new(),
         })
@@ -358,11 +368,14 @@ impl Signatures {
                 let (yr, yi) = (self.yr.as_flattened(), self.yi.as_flattened());
                 let smoothed = &mut self.smoothed[s * bands..(s + 1) * bands];
                 let db = &mut self.db[s * bands..(s + 1) * bands];
-                for ((sm, db), &(start, count)) in smoothed.iter_mut().zip(db).zip(&self.band_bins) {
+                for (sm, &(start, count)) in smoothed.iter_mut().zip(&self.band_bins) {
                     let sum: f32 = (start..start + count).map(|k| yr[k] * yr[k] + yi[k] * yi[k]).sum();
                     let p = sum / count as f32 * self.norm;
                     *sm = if fresh[j] { p } else { *sm + self.alpha * (p - *sm) };
-                    *db = (10.0 * sm.max(POWER_FLOOR).log10()).clamp(-200.0, 200.0);
+                }
+                // Apart, so that it vectorizes (crate::fastmath).
+                for (db, sm) in db.iter_mut().zip(smoothed.iter()) {
+                    *db = crate::fastmath::decibels(sm.max(POWER_FLOOR)).clamp(-200.0, 200.0);
                 }
             }
             out.extend_from_slice(&self.db[s * bands..(s + 1) * bands]);
@@ -403,12 +416,22 @@ impl Signatures {
         let per_anchor = REANCHOR_BINS / LANES;
         self.yr.fill([0.0; LANES]);
         self.yi.fill([0.0; LANES]);
+        // Every microphone's one-bin step e^{jw} and first anchor e^{jw·k₀}
+        // in one pass the compiler vectorizes (crate::fastmath).
+        let k0 = self.first_bin as f64;
+        for (((d, step), anchor), w) in
+            self.delays.iter().zip(&mut self.step).zip(&mut self.anchor).zip(&mut self.w)
+        {
+            *w = -self.domega * d.dot(u);
+            *step = crate::fastmath::sin_cos(*w);
+            *anchor = crate::fastmath::sin_cos(*w * k0);
+        }
         let cmul = |(ar, ai): (f32, f32), (br, bi): (f32, f32)| (ar * br - ai * bi, ar * bi + ai * br);
-        for (m, d) in self.delays.iter().enumerate() {
-            let w = -self.domega * d.dot(u);
-            // Per microphone: one bin's step e^{jw}, its 8th power by squaring,
-            // and one exact anchor per REANCHOR_BINS.
-            let (s1, c1) = (w as f32).sin_cos();
+        for m in 0..self.delays.len() {
+            let w = self.w[m];
+            // Per microphone: one bin's step, its 8th power by squaring, and
+            // one exact anchor per REANCHOR_BINS.
+            let (s1, c1) = self.step[m];
             let sq2 = cmul((c1, s1), (c1, s1));
             let sq4 = cmul(sq2, sq2);
             let (c8, s8) = cmul(sq4, sq4);
@@ -416,8 +439,11 @@ impl Signatures {
             let xi = &self.xi[m * chunks..(m + 1) * chunks];
             for block in (0..chunks).step_by(per_anchor) {
                 let (mut pr, mut pi) = ([0f32; LANES], [0f32; LANES]);
-                let k0 = (self.first_bin + block * LANES) as f64;
-                let (s0, c0) = ((w * k0) as f32).sin_cos();
+                let (s0, c0) = if block == 0 {
+                    self.anchor[m]
+                } else {
+                    crate::fastmath::sin_cos(w * (self.first_bin + block * LANES) as f64)
+                };
                 (pr[0], pi[0]) = (c0, s0);
                 for l in 1..LANES {
                     (pr[l], pi[l]) = cmul((pr[l - 1], pi[l - 1]), (c1, s1));
