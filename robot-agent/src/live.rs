@@ -229,7 +229,7 @@ fn plan_hops(
                 start = audio_start.plus_ns(-length_ns);
                 source = audio::open(&audio.input, &BlockOptions { start, ..options })?;
             }
-            let floor = pipeline.doa_sigma_floor_deg;
+            let floor = p.doa_sigma_floor_rad().to_degrees();
             (
                 HopPlan::Own { source, pipeline: Box::new(p), file, realtime: file && audio.realtime },
                 start,

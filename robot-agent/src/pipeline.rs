@@ -48,8 +48,23 @@ pub struct PipelineConfig {
     /// DoA consistently for a given geometry, invisibly to the tracker: in a
     /// simulated 0.6 s RT60 room at 2–3 m the errors were 4× the tracker's σ.
     /// Default 1.0 (theory §5.1 expects 2–4° per axis for talkers in rooms;
-    /// a white-noise source is easier).
+    /// a white-noise source is easier). With
+    /// `doa_sigma_floor_full_aperture_m` set, an array smaller than it gets
+    /// the floor scaled up by that aperture over its own.
     pub doa_sigma_floor_deg: f64,
+    /// Aperture (largest microphone distance, m) from which the σ floor is
+    /// `doa_sigma_floor_deg` itself; a smaller array's floor is scaled by
+    /// this / its aperture. Reflections pull a peak by a share of its main
+    /// lobe, whose width goes as wavelength over aperture: in the
+    /// image-source rooms of `tests/tests/hearing_reverb.rs` (RT60 0.5 s) the
+    /// 9 cm ReSpeaker 6 erred 11.7° at the case median against 2.8° for the
+    /// 49 cm 16SoundsUSB, 4.2× for 5.3× less aperture. At 0.4 both
+    /// 16SoundsUSB layouts keep the floor as it is and a ReSpeaker 6 gets
+    /// 4.3°, a ReSpeaker 4 6.3°, a UMA-8 4.7°. Default 0 (off): with 0.4, the
+    /// static `cocktail` scenario's OSPA fell 7 % on each of 8 seeds and
+    /// trusted NEES came closer to 3 everywhere, but `crossing` and
+    /// `cocktail-active` got worse (BENCHMARKS.md, "Several sources").
+    pub doa_sigma_floor_full_aperture_m: f64,
     /// Most tracks reported per observation (K, 1..=64; default 4): the
     /// confirmed tracks, most active first. Declared in the hello as
     /// `max_tracks`. (The tracker may hold more, `tracker.max_tracks`.)
@@ -68,6 +83,7 @@ impl Default for PipelineConfig {
             srp: SrpConfig::default(),
             tracker: TrackerConfig::default(),
             doa_sigma_floor_deg: 1.0,
+            doa_sigma_floor_full_aperture_m: 0.0,
             max_reported_tracks: 4,
             signature: SignatureConfig::default(),
         }
@@ -152,6 +168,12 @@ impl FrameResult {
     }
 }
 
+/// The factor on the σ floor for an array of `aperture_m` when the floor is
+/// full from `full_m` on: `max(1, full_m / aperture_m)` (1 when either is 0).
+pub fn aperture_scale(aperture_m: f64, full_m: f64) -> f64 {
+    if aperture_m > 0.0 && full_m > 0.0 { (full_m / aperture_m).max(1.0) } else { 1.0 }
+}
+
 /// STFT → SRP-PHAT → tracker for one array.
 #[derive(Debug)]
 pub struct Pipeline {
@@ -194,6 +216,13 @@ impl Pipeline {
                 message: format!("must be in [0, 30] degrees, got {floor}"),
             });
         }
+        let full = config.doa_sigma_floor_full_aperture_m;
+        if !(full.is_finite() && (0.0..=10.0).contains(&full)) {
+            return Err(AgentError::InvalidParameter {
+                field: "doa_sigma_floor_full_aperture_m".into(),
+                message: format!("must be in [0, 10] m, got {full}"),
+            });
+        }
         let stft = Stft::new(array.channels(), config.frame_len, config.hop_len, config.window)?;
         let srp = Srp::new(array, fs, config.frame_len, &config.srp)?;
         let hop_s = config.hop_len as f64 / fs as f64;
@@ -217,7 +246,8 @@ impl Pipeline {
                 signatures_db: Vec::with_capacity(k * bands),
             },
             stamp_offset_ns: (offset_samples * 1e9 / fs as f64).round() as i64,
-            doa_sigma_floor_rad: floor.to_radians(),
+            doa_sigma_floor_rad: floor.to_radians()
+                * aperture_scale(array.aperture_m(), config.doa_sigma_floor_full_aperture_m),
             report_max_silence_s: config.tracker.report_max_silence_s,
             base_from_array: array.base_from_array.rotation,
             tracks_frame: None,
@@ -425,6 +455,24 @@ max_source = 3
         );
         let array = ArrayGeometry::load("respeaker-4").unwrap();
         assert!(Pipeline::new(&array, &c).is_ok());
+    }
+
+    #[test]
+    fn sigma_floor_scales_with_a_small_aperture_only_when_asked() {
+        let floor = |preset: &str, full: f64| {
+            let array = ArrayGeometry::load(preset).unwrap();
+            let config = PipelineConfig { doa_sigma_floor_full_aperture_m: full, ..PipelineConfig::default() };
+            Pipeline::new(&array, &config).unwrap().doa_sigma_floor_rad().to_degrees()
+        };
+        // Off by default: 1° for every array.
+        assert!((floor("respeaker-6", 0.0) - 1.0).abs() < 1e-12);
+        // At 0.4 m: the 16SoundsUSB keeps 1°, the 9.3 cm ReSpeaker 6 gets 0.4/0.093.
+        assert!((floor("16soundsusb-pioneer", 0.4) - 1.0).abs() < 1e-12);
+        let respeaker = floor("respeaker-6", 0.4);
+        assert!((4.2..4.4).contains(&respeaker), "{respeaker}");
+        let bad = PipelineConfig { doa_sigma_floor_full_aperture_m: f64::NAN, ..PipelineConfig::default() };
+        let err = Pipeline::new(&ArrayGeometry::load("uma8").unwrap(), &bad).unwrap_err();
+        assert!(err.to_string().contains("doa_sigma_floor_full_aperture_m"), "{err}");
     }
 
     #[test]
