@@ -461,7 +461,8 @@ max_source = 3
     fn sigma_floor_scales_with_a_small_aperture_only_when_asked() {
         let floor = |preset: &str, full: f64| {
             let array = ArrayGeometry::load(preset).unwrap();
-            let config = PipelineConfig { doa_sigma_floor_full_aperture_m: full, ..PipelineConfig::default() };
+            let config =
+                PipelineConfig { doa_sigma_floor_full_aperture_m: full, ..PipelineConfig::default() };
             Pipeline::new(&array, &config).unwrap().doa_sigma_floor_rad().to_degrees()
         };
         // Off by default: 1° for every array.

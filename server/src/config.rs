@@ -133,8 +133,16 @@ pub struct DoaConfig {
     /// Pressure reflection coefficient of the floor, in [0, 1): how strongly a
     /// planar array hears the floor image that pulls its elevations up
     /// ([`crate::floor_image`]). 0 keeps only the folding of elevations onto the
-    /// upper hemisphere. Default 0.6.
+    /// upper hemisphere. Default 0.6. This is the value for a DoA heard over
+    /// the SRP's whole band; see `narrow_band_reflection`.
     pub floor_reflection: f64,
+    /// The reflection coefficient for a DoA heard over less than
+    /// [`crate::floor_image::NARROW_BAND_FRACTION`] of the SRP's band (a
+    /// talker's 300–3400 Hz), in [0, 1); between the two, R goes linearly with
+    /// the heard share of the band (from the track's signature; see
+    /// [`crate::floor_image::band_reflection`]). Default 0.75. Equal to
+    /// `floor_reflection`, the band does not matter.
+    pub narrow_band_reflection: f64,
     /// Height of the robots' base frame above the floor (m); 0 for a
     /// `base_footprint`-style frame on the floor.
     pub base_height_m: f64,
@@ -376,6 +384,7 @@ impl Default for DoaConfig {
             default_sigma_deg: 3.0,
             min_activity: 0.0,
             floor_reflection: 0.6,
+            narrow_band_reflection: 0.75,
             base_height_m: 0.0,
             ceiling_height_m: None,
             reverberant_pull: 0.0,
@@ -432,6 +441,12 @@ impl CoordinatorConfig {
         }
         if !(0.0..1.0).contains(&self.doa.floor_reflection) {
             return err("doa.floor_reflection", format!("{} not in [0, 1)", self.doa.floor_reflection));
+        }
+        if !(0.0..1.0).contains(&self.doa.narrow_band_reflection) {
+            return err(
+                "doa.narrow_band_reflection",
+                format!("{} not in [0, 1)", self.doa.narrow_band_reflection),
+            );
         }
         if !(0.0..=1.0).contains(&self.doa.reverberant_pull) {
             return err("doa.reverberant_pull", format!("{} not in [0, 1]", self.doa.reverberant_pull));

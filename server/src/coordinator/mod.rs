@@ -43,7 +43,7 @@ pub use tracking::TrackingCounters;
 
 use crate::config::CoordinatorConfig;
 use crate::error::ServerError;
-use crate::floor_image::{FloorFold, array_pattern, heard_band, reverberant_reflection};
+use crate::floor_image::{FloorFold, array_pattern, band_reflection, heard_band, reverberant_reflection};
 use crate::ray::Ray;
 use crate::triangulation::triangulate;
 use positioning::Positioning;
@@ -272,6 +272,7 @@ impl Coordinator {
         let several = self.sound_map.is_some();
         let default_sigma = self.config.doa.default_sigma_deg.to_radians();
         let (reflection, base_height_m) = (self.config.doa.floor_reflection, self.config.doa.base_height_m);
+        let narrow_reflection = self.config.doa.narrow_band_reflection;
         let pull = self.config.doa.reverberant_pull;
         let ceiling_m = self.config.doa.ceiling_height_m;
         let history_ns = self.config.alignment.history_ms as i64 * 1_000_000;
@@ -334,7 +335,14 @@ impl Coordinator {
                         let fraction = ((h_hi.min(hi) - h_lo.max(lo)) / (hi - lo)).clamp(1e-3, 1.0);
                         reverberant_reflection(c, fraction, pull)
                     })
-                    .unwrap_or(reflection);
+                    .unwrap_or_else(|| {
+                        band_reflection(
+                            reflection,
+                            narrow_reflection,
+                            band,
+                            declared.map(|[lo, hi]| (lo, hi)),
+                        )
+                    });
                 let fold =
                     pattern.map(|p| FloorFold { array_height_m, reflection, lobe: p.lobe(band), ceiling_m });
                 let ray = Ray {
