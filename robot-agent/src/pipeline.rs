@@ -115,9 +115,15 @@ impl PipelineConfig {
         let edges = self.signature.band_edges_hz(self.sample_rate_hz)?;
         hello.max_tracks = Some(self.max_reported_tracks as u32);
         hello.signature_bands = (!edges.is_empty()).then_some(edges);
-        let nyquist = 0.5 * self.sample_rate_hz as f64;
-        hello.array.srp_band_hz = Some([self.srp.min_frequency_hz, self.srp.max_frequency_hz.min(nyquist)]);
+        hello.array.srp_band_hz = Some(self.srp_band_hz());
         Ok(hello)
+    }
+
+    /// The SRP's band as the hello declares it (`ArrayInfo::srp_band_hz`), Hz:
+    /// `[srp.min_frequency_hz, srp.max_frequency_hz]`, the top capped at Nyquist.
+    pub fn srp_band_hz(&self) -> [f64; 2] {
+        let nyquist = 0.5 * self.sample_rate_hz as f64;
+        [self.srp.min_frequency_hz, self.srp.max_frequency_hz.min(nyquist)]
     }
 }
 

@@ -553,25 +553,27 @@ pub fn reverberant_reflection(coherence: f64, band_fraction: f64, gain: f64) -> 
 }
 
 /// Share of the SRP's band at and below which a DoA counts as narrow-band
-/// for [`band_reflection`]: a talker's 300–3400 Hz in a 62.5–7937.5 Hz SRP
-/// band is 0.39.
+/// for [`band_reflection`]: a talker's 300–3400 Hz in the 100–8000 Hz band
+/// soundmap agents declare is 0.39.
 pub const NARROW_BAND_FRACTION: f64 = 0.4;
 
-/// The reflection coefficient for a DoA heard over `heard_hz` of the SRP's
-/// band `srp_hz` (see the module docs, "Narrow bands"): `broad` for the whole
-/// band, `narrow` at or below [`NARROW_BAND_FRACTION`] of it, linear in the
-/// heard share between. `broad` when either band is unknown or empty.
-pub fn band_reflection(
-    broad: f64,
-    narrow: f64,
-    heard_hz: Option<(f64, f64)>,
-    srp_hz: Option<(f64, f64)>,
-) -> f64 {
-    let (Some((h_lo, h_hi)), Some((lo, hi))) = (heard_hz, srp_hz) else { return broad };
+/// The share of the SRP's band `srp_hz` that a track heard over `heard_hz`
+/// covers, in [1e-3, 1]: 1 when the heard band is unknown (the whole band),
+/// `None` for an empty SRP band.
+pub fn band_share(heard_hz: Option<(f64, f64)>, (lo, hi): (f64, f64)) -> Option<f64> {
     if !(hi > lo) {
-        return broad;
+        return None;
     }
-    let share = ((h_hi.min(hi) - h_lo.max(lo)) / (hi - lo)).clamp(0.0, 1.0);
+    let (h_lo, h_hi) = heard_hz.unwrap_or((lo, hi));
+    Some(((h_hi.min(hi) - h_lo.max(lo)) / (hi - lo)).clamp(1e-3, 1.0))
+}
+
+/// The reflection coefficient for a DoA heard over `share` of the SRP's band
+/// ([`band_share`]; see the module docs, "Narrow bands"): `broad` for the
+/// whole band, `narrow` at or below [`NARROW_BAND_FRACTION`] of it, linear
+/// in the share between. `broad` when the share is unknown.
+pub fn band_reflection(broad: f64, narrow: f64, share: Option<f64>) -> f64 {
+    let Some(share) = share else { return broad };
     let t = ((1.0 - share) / (1.0 - NARROW_BAND_FRACTION)).clamp(0.0, 1.0);
     broad + (narrow - broad) * t
 }
@@ -701,19 +703,24 @@ impl FloorFold {
 mod tests {
     #[test]
     fn reflection_goes_from_broad_to_narrow_with_the_heard_share_of_the_band() {
-        use super::band_reflection;
-        let srp = Some((62.5, 7937.5));
-        assert_eq!(band_reflection(0.6, 0.75, Some((62.5, 7937.5)), srp), 0.6);
-        assert_eq!(band_reflection(0.6, 0.75, None, srp), 0.6);
-        assert_eq!(band_reflection(0.6, 0.75, Some((300.0, 3400.0)), None), 0.6);
+        use super::{band_reflection, band_share};
+        let srp = (62.5, 7937.5);
+        let r = |heard: Option<(f64, f64)>, srp: Option<(f64, f64)>| {
+            band_reflection(0.6, 0.75, srp.and_then(|b| band_share(heard, b)))
+        };
+        assert_eq!(r(Some((62.5, 7937.5)), Some(srp)), 0.6);
+        assert_eq!(r(None, Some(srp)), 0.6);
+        assert_eq!(r(Some((300.0, 3400.0)), None), 0.6);
         // A talker's band (39 % of the SRP's) and narrower: the narrow value.
-        assert!((band_reflection(0.6, 0.75, Some((300.0, 3400.0)), srp) - 0.75).abs() < 1e-12);
-        assert!((band_reflection(0.6, 0.75, Some((500.0, 1000.0)), srp) - 0.75).abs() < 1e-12);
+        assert!((r(Some((300.0, 3400.0)), Some(srp)) - 0.75).abs() < 1e-12);
+        assert!((r(Some((500.0, 1000.0)), Some(srp)) - 0.75).abs() < 1e-12);
         // Halfway in share: halfway in R.
-        let half = band_reflection(0.6, 0.75, Some((62.5, 62.5 + 0.7 * 7875.0)), srp);
+        let half = r(Some((62.5, 62.5 + 0.7 * 7875.0)), Some(srp));
         assert!((half - 0.675).abs() < 1e-9, "{half}");
         // A band outside the SRP's counts as nothing heard in it.
-        assert!((band_reflection(0.6, 0.75, Some((9000.0, 12000.0)), srp) - 0.75).abs() < 1e-12);
+        assert!((r(Some((9000.0, 12000.0)), Some(srp)) - 0.75).abs() < 1e-12);
+        // An empty SRP band: no share, the broad value.
+        assert_eq!(band_share(Some((300.0, 3400.0)), (8000.0, 8000.0)), None);
     }
 
     use super::*;

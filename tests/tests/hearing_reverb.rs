@@ -461,7 +461,7 @@ fn robot_in_a_corner_hears_the_source_and_not_the_noise() {
 /// horizontal part (azimuth error × cos of the true elevation), of the signed
 /// elevation error, and of the angle to what the coordinator's floor-image
 /// model (`soundmap_server::floor_image`, its default R = 0.6, the 3 m
-/// ceiling, the pipeline's SRP band) predicts this array measures for the
+/// ceiling, the SRP band the agent declares) predicts this array measures for the
 /// true source; the table gives the median and p95 over cases:
 /// `cargo test -p soundmap-sim --test hearing_reverb error_parts_sweep -- --ignored --nocapture`.
 #[test]
@@ -477,10 +477,9 @@ fn error_parts_sweep() {
     for preset in ["16soundsusb-pioneer", "16soundsusb-turtlebot"] {
         let array = ArrayGeometry::load(preset).unwrap();
         let positions: Vec<Point3<f64>> = array.positions().collect();
-        let srp = soundmap_agent::srp::Srp::new(&array, config.sample_rate_hz, config.frame_len, &config.srp)
-            .unwrap();
-        let pattern =
-            array_pattern(&positions, srp.band_hz(config.sample_rate_hz, config.frame_len)).unwrap();
+        // The band the agent declares in its hello, as the coordinator sees it.
+        let [lo, hi] = config.srp_band_hz();
+        let pattern = array_pattern(&positions, (lo, hi)).unwrap();
         for rt60 in [0.4, 0.65, 0.8] {
             let mut parts: [Vec<f64>; 4] = Default::default();
             for seed in 1000..1012 {

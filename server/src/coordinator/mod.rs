@@ -43,7 +43,9 @@ pub use tracking::TrackingCounters;
 
 use crate::config::CoordinatorConfig;
 use crate::error::ServerError;
-use crate::floor_image::{FloorFold, array_pattern, band_reflection, heard_band, reverberant_reflection};
+use crate::floor_image::{
+    FloorFold, array_pattern, band_reflection, band_share, heard_band, reverberant_reflection,
+};
 use crate::ray::Ray;
 use crate::triangulation::triangulate;
 use positioning::Positioning;
@@ -325,24 +327,14 @@ impl Coordinator {
                     .zip(d.signature.as_deref())
                     .and_then(|(e, levels)| heard_band(e, levels, HEARD_BAND_RANGE_DB));
                 // The reflections' pull as this DoA's coherence reports it (the
-                // share of the SRP band the track is heard in rescales it).
+                // share of the SRP band the track is heard in rescales it), or
+                // else as that share says (see floor_image, "Narrow bands").
+                let share = declared.and_then(|[lo, hi]| band_share(band, (lo, hi)));
                 let reflection = d
                     .coherence
                     .filter(|_| pull > 0.0)
-                    .and_then(|c| {
-                        let [lo, hi] = declared?;
-                        let (h_lo, h_hi) = band.unwrap_or((lo, hi));
-                        let fraction = ((h_hi.min(hi) - h_lo.max(lo)) / (hi - lo)).clamp(1e-3, 1.0);
-                        reverberant_reflection(c, fraction, pull)
-                    })
-                    .unwrap_or_else(|| {
-                        band_reflection(
-                            reflection,
-                            narrow_reflection,
-                            band,
-                            declared.map(|[lo, hi]| (lo, hi)),
-                        )
-                    });
+                    .and_then(|c| reverberant_reflection(c, share?, pull))
+                    .unwrap_or_else(|| band_reflection(reflection, narrow_reflection, share));
                 let fold =
                     pattern.map(|p| FloorFold { array_height_m, reflection, lobe: p.lobe(band), ceiling_m });
                 let ray = Ray {
