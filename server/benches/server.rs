@@ -167,7 +167,8 @@ fn folded(rays: &[Ray], ceiling_m: Option<f64>) -> Vec<Ray> {
             Point3::new(0.18 * a.cos(), 0.18 * a.sin(), 0.0)
         })
         .collect();
-    let lobe = array_pattern(&mics, (100.0, 8000.0)).expect("planar array").lobe(None);
+    let pattern = array_pattern(&mics, (100.0, 8000.0)).expect("planar array");
+    let (lobe, vertical_spread) = (pattern.lobe(None), Some(pattern.vertical_spread()));
     rays.iter()
         .map(|r| Ray {
             fold: Some(FloorFold {
@@ -175,6 +176,7 @@ fn folded(rays: &[Ray], ceiling_m: Option<f64>) -> Vec<Ray> {
                 reflection: 0.6,
                 lobe,
                 ceiling_m,
+                vertical_spread,
             }),
             ..*r
         })

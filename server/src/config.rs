@@ -162,6 +162,15 @@ pub struct DoaConfig {
     /// experimental (it fits the distance sweep's rooms, not `paper-static`'s;
     /// see the module docs).
     pub reverberant_pull: f64,
+    /// Model that a planar array resolves elevation worse than azimuth: for
+    /// robots whose hello declares microphone positions and the SRP band, the
+    /// reported σ is taken as the horizontal axis's and the vertical axis's
+    /// grows as the source nears the array's plane, from the microphones'
+    /// vertical spread ([`crate::ray::Ray::vertical_excess`]). Off (the
+    /// default): the same σ on both axes. On, trusted estimates are more
+    /// honest but heights less accurate (see [`crate::floor_image`],
+    /// "Elevation is resolved worse than azimuth").
+    pub planar_elevation_noise: bool,
 }
 
 /// Acceptance limits of incoming messages.
@@ -388,6 +397,7 @@ impl Default for DoaConfig {
             base_height_m: 0.0,
             ceiling_height_m: None,
             reverberant_pull: 0.0,
+            planar_elevation_noise: false,
         }
     }
 }

@@ -154,6 +154,42 @@
 //! nearly the whole band. A single R of 0.7 for every band over-corrects
 //! white noise (`paper-static` 0.197 m) and 0.8 more (0.308 m).
 //!
+//! # Elevation is resolved worse than azimuth
+//!
+//! A delay-based DoA's information along a tangent t of its direction is
+//! ∝ tᵀCt, C the covariance of the microphones' positions. A planar array's
+//! C is flat: along the horizontal tangent it has the array's horizontal
+//! spread, along the vertical tangent only sin²e of it (plus cos²e of its
+//! small vertical spread), e the elevation above the array's plane. Near the
+//! plane the array measures elevation through cos e alone. With the reported
+//! σ taken as the horizontal axis's, the vertical one is
+//! σ_v = σ / √(sin²e + ρ·cos²e + 1.25·σ), ρ = var(z)/var(horizontal) of the
+//! microphones ([`ArrayPattern::vertical_spread`]; 0.0036 for the 16SoundsUSB
+//! Pioneer preset, 0 for flat boards), the last term the second-order limit
+//! on the plane (E[e²] = 0.8·σ there). With σ = 1°, for the Pioneer preset:
+//! σ_v = 6.3° on the plane, 4.7° at e = 8°, 2.7° at 20°, 1.4° at 45°. The reflections
+//! follow the same sensitivity: an image that shifts the horizontal
+//! component by δ shifts the elevation by δ / sin e. The agents' errors
+//! match it (BENCHMARKS.md, "Where that error lies": 16SoundsUSB sources
+//! 6–15° above the plane read +3.5 to +5.9° high at RT60 0.65 s, those
+//! ≥ 17° within ±0.7°; the ReSpeaker 6's elevations +11 to +14° against an
+//! azimuth error of 1.5–3°).
+//!
+//! `doa.planar_elevation_noise` puts this in the rays' noise
+//! ([`crate::ray::Ray::vertical_excess`], [`crate::ray::Ray::angular_covariance`]:
+//! the triangulation's weights and covariance and the tracker's R). It is
+//! **off** by default. Measured (BENCHMARKS.md, "Elevation noise"; seeds 1–5)
+//! it makes the trusted estimates of the several-source scenarios far more
+//! honest (outside their 99 % ellipsoid: `cocktail` 22.5 → 11.8 %,
+//! `crossing` 26.8 → 15.1 %; `crossing`'s id switches 12.2 → 4.6 per run)
+//! but not more accurate: the weight of height moves to the robots that see
+//! a source highest, whose elevations carry biases the model above does not
+//! take out (the ReSpeaker 6's +11°, reported with the same 1° σ floor as the
+//! 16-microphone arrays), and heights rise (`cocktail` +0.08 → +0.16 m,
+//! OSPA 0.370 → 0.374 m, `cocktail-active` 0.347 → 0.379 m; the active
+//! single-source scenarios lose θ in band on some seeds). It waits for
+//! agents that report a σ as honest for small arrays as for large ones.
+//!
 //! Assumptions, stated: the array is level (its plane parallel to the floor), the
 //! floor is the plane `doa.base_height_m` below the robot's base frame, and the
 //! floor reflects every frequency with the same R. An array is treated as
@@ -370,6 +406,9 @@ pub struct ArrayPattern {
     declared: (usize, usize),
     /// β tables by band (grid indices).
     tables: Mutex<HashMap<(usize, usize), &'static LobeTable>>,
+    /// ρ = var(z) / mean horizontal var of the microphones' positions
+    /// ([`ArrayPattern::vertical_spread`]).
+    vertical_spread: f64,
 }
 
 impl std::fmt::Debug for ArrayPattern {
@@ -441,7 +480,23 @@ impl ArrayPattern {
         }
         let norm = 1.0 / count.max(1) as f64;
         g.iter_mut().for_each(|v| *v *= norm);
-        Some(ArrayPattern { g, n_delta, n_f, declared: (k1, k2), tables: Mutex::new(HashMap::new()) })
+        let vertical_spread = vertical_spread(positions);
+        Some(ArrayPattern {
+            g,
+            n_delta,
+            n_f,
+            declared: (k1, k2),
+            tables: Mutex::new(HashMap::new()),
+            vertical_spread,
+        })
+    }
+
+    /// ρ = var(z) / ½(var(x) + var(y)) of the microphones' positions: how
+    /// much of the array's aperture is vertical (0 for a flat board; the
+    /// 16SoundsUSB Pioneer preset 0.0036). It sets how poorly the array resolves
+    /// elevation near its plane ([`FloorFold::vertical_spread`]).
+    pub fn vertical_spread(&self) -> f64 {
+        self.vertical_spread
     }
 
     /// B(δ) of the band [f_k1, f_k2], normalized so that B(0) = 1.
@@ -557,6 +612,16 @@ pub fn reverberant_reflection(coherence: f64, band_fraction: f64, gain: f64) -> 
 /// soundmap agents declare is 0.39.
 pub const NARROW_BAND_FRACTION: f64 = 0.4;
 
+/// ρ = var(z) / ½(var(x) + var(y)) of `positions` (array frame); 0 when
+/// they have no horizontal spread.
+fn vertical_spread(positions: &[Point3<f64>]) -> f64 {
+    let n = positions.len().max(1) as f64;
+    let mean = positions.iter().fold(Vector3::zeros(), |a, p| a + p.coords) / n;
+    let var = |k: usize| positions.iter().map(|p| (p[k] - mean[k]).powi(2)).sum::<f64>() / n;
+    let horizontal = 0.5 * (var(0) + var(1));
+    if horizontal > 0.0 { var(2) / horizontal } else { 0.0 }
+}
+
 /// The share of the SRP's band `srp_hz` that a track heard over `heard_hz`
 /// covers, in [1e-3, 1]: 1 when the heard band is unknown (the whole band),
 /// `None` for an empty SRP band.
@@ -610,6 +675,11 @@ pub struct FloorFold {
     /// the floor–ceiling images join the floor image (see the module docs,
     /// "The ceiling"). `None`: the floor image alone.
     pub ceiling_m: Option<f64>,
+    /// ρ of the array ([`ArrayPattern::vertical_spread`]) when its DoAs'
+    /// elevation noise is modelled (see the module docs, "Elevation is
+    /// resolved worse than azimuth", and [`crate::ray::Ray::angular_covariance`]);
+    /// `None`: the same σ on both tangent axes.
+    pub vertical_spread: Option<f64>,
 }
 
 /// Most reflections an image of the vertical family may have been through.
@@ -747,6 +817,14 @@ mod tests {
     }
 
     #[test]
+    fn vertical_spread_is_the_share_of_aperture_out_of_the_plane() {
+        let pattern = ArrayPattern::for_array(&sixteen(), (100.0, 8000.0)).unwrap();
+        assert!((pattern.vertical_spread() - 0.003568).abs() < 1e-5, "{}", pattern.vertical_spread());
+        let flat: Vec<Point3<f64>> = sixteen().iter().map(|p| Point3::new(p.x, p.y, 0.0)).collect();
+        assert_eq!(ArrayPattern::for_array(&flat, (100.0, 8000.0)).unwrap().vertical_spread(), 0.0);
+    }
+
+    #[test]
     fn non_planar_arrays_have_no_table() {
         let mut tall = sixteen();
         tall[0].z = 0.2;
@@ -802,7 +880,13 @@ mod tests {
     #[test]
     fn model_matches_the_worked_numbers() {
         let lobe = array_pattern(&sixteen(), (100.0, 8000.0)).unwrap().lobe(None);
-        let fold = FloorFold { array_height_m: 0.5125, reflection: 0.8, lobe, ceiling_m: None };
+        let fold = FloorFold {
+            array_height_m: 0.5125,
+            reflection: 0.8,
+            lobe,
+            ceiling_m: None,
+            vertical_spread: None,
+        };
         let origin = Point3::new(0.0, 0.0, 0.5125);
         let bias = |rho: f64| {
             let src = Point3::new(rho, 0.0, 1.2);
@@ -844,7 +928,8 @@ mod tests {
     #[test]
     fn the_ceiling_pulls_a_talker_up_more_than_the_floor_alone() {
         let lobe = array_pattern(&sixteen(), (100.0, 8000.0)).unwrap().lobe(Some((300.0, 3400.0)));
-        let floor = FloorFold { array_height_m: 0.51, reflection: 0.6, lobe, ceiling_m: None };
+        let floor =
+            FloorFold { array_height_m: 0.51, reflection: 0.6, lobe, ceiling_m: None, vertical_spread: None };
         let room = FloorFold { ceiling_m: Some(3.0), ..floor };
         // A ceiling far away changes nothing that matters.
         let far = FloorFold { ceiling_m: Some(60.0), ..floor };

@@ -1,6 +1,6 @@
 //! Bearing rays in the map frame, built from a robot's DoA and its pose.
 
-use nalgebra::{Isometry3, Matrix3, Matrix6, Point3, Unit, Vector3};
+use nalgebra::{Isometry3, Matrix2, Matrix3, Matrix3x2, Matrix6, Point3, Unit, Vector2, Vector3};
 
 use crate::floor_image::FloorFold;
 
@@ -80,6 +80,75 @@ impl Ray {
         self.lateral_variance(range_m) / range_m.max(MIN_RANGE_M).powi(2)
     }
 
+    /// The vertical tangent of the ray's direction (unit, ⊥ the direction, in
+    /// its vertical plane) and the angular variance its DoA has along it on
+    /// top of [`Ray::angular_variance`] (rad²), for a ray whose array resolves
+    /// elevation worse than azimuth ([`FloorFold::vertical_spread`]); `None`
+    /// otherwise, or for a ray pointing straight up or down.
+    ///
+    /// A DoA's information along a tangent t is ∝ tᵀCt, C the covariance of
+    /// the microphones' positions (the Cramér–Rao bound of delay-based
+    /// direction finding). Along the horizontal tangent that is the array's
+    /// horizontal spread; along the vertical one, sin²e of it plus cos²e of
+    /// its vertical spread, e the elevation above the array's plane. With
+    /// the reported σ taken as the horizontal axis's, the vertical axis's is
+    /// σ_v² = σ² / (sin²e + ρ·cos²e + 1.25·σ), ρ the vertical-to-horizontal
+    /// spread. The last term is the second-order limit on the plane itself,
+    /// where a planar array reads e = √(2|n|) from a horizontal error n:
+    /// E[e²] = 0.8·σ. The same sensitivity scales the reflections' pull: an
+    /// image that moves the horizontal component by δ moves the elevation by
+    /// δ / sin e (see [`crate::floor_image`], "Elevation is resolved worse
+    /// than azimuth", for numbers).
+    pub fn vertical_excess(&self) -> Option<(Vector3<f64>, f64)> {
+        let rho = self.fold?.vertical_spread?;
+        let d = self.direction_in_map;
+        let h = Vector3::z().cross(&d);
+        let n = h.norm();
+        if !(n > 1e-9) {
+            return None;
+        }
+        let v = d.cross(&(h / n));
+        let sin2 = d.z * d.z;
+        let sigma = self.sigma_rad;
+        let info = sin2 + rho.max(0.0) * (1.0 - sin2) + 1.25 * sigma;
+        let excess = sigma * sigma * (1.0 / info - 1.0).max(0.0);
+        (excess.is_finite() && excess > 0.0).then_some((v, excess))
+    }
+
+    /// Angular noise covariance (rad²) of the DoA at range `range_m` on the
+    /// tangent axes `basis` (two orthonormal columns ⊥ a direction near the
+    /// ray's): [`Ray::angular_variance`] on both, plus the vertical excess
+    /// ([`Ray::vertical_excess`]) along the vertical tangent's projection.
+    pub fn angular_covariance(&self, basis: &Matrix3x2<f64>, range_m: f64) -> Matrix2<f64> {
+        let iso = Matrix2::identity() * self.angular_variance(range_m);
+        match self.vertical_excess() {
+            Some((v, excess)) => {
+                let p: Vector2<f64> = basis.transpose() * v;
+                iso + p * p.transpose() * excess
+            }
+            None => iso,
+        }
+    }
+
+    /// Fisher information (m⁻²) the ray's DoA carries about a source at `x`:
+    /// (I − uuᵀ)/(σ²r² + σ_origin²) with u toward `x`, or with the vertical
+    /// excess, B R⁻¹ Bᵀ / r² with B the tangent basis at u and R
+    /// [`Ray::angular_covariance`].
+    pub fn fisher_at(&self, x: &Point3<f64>) -> Matrix3<f64> {
+        let v = x - self.origin_in_map;
+        let r = v.norm().max(MIN_RANGE_M);
+        let u = v / r;
+        if self.vertical_excess().is_none() {
+            return (Matrix3::identity() - u * u.transpose()) / self.lateral_variance(r);
+        }
+        let (b1, b2) = tangent_basis(&Unit::new_unchecked(u));
+        let basis = Matrix3x2::from_columns(&[b1, b2]);
+        match self.angular_covariance(&basis, r).try_inverse() {
+            Some(w) => basis * w * basis.transpose() / (r * r),
+            None => (Matrix3::identity() - u * u.transpose()) / self.lateral_variance(r),
+        }
+    }
+
     /// Signed distance along the ray to the foot of the perpendicular from `p` (m).
     pub fn along(&self, p: &Point3<f64>) -> f64 {
         self.direction_in_map.dot(&(p - self.origin_in_map))
@@ -133,6 +202,64 @@ mod tests {
         assert!((horizontal.sigma_rad - 0.02 / 2f64.sqrt()).abs() < 1e-12);
         let vertical = Ray::from_doa(&id, &id, &Unit::new_normalize(Vector3::z()), 0.0, Some(&c));
         assert!(vertical.sigma_rad < 1e-12);
+    }
+
+    /// A level planar array's DoA at elevation `e_deg`, σ 1°, vertical spread `rho`.
+    fn planar(e_deg: f64, rho: Option<f64>) -> Ray {
+        let pattern = crate::floor_image::ArrayPattern::for_array(
+            &[Point3::new(0.1, 0.0, 0.0), Point3::new(-0.1, 0.0, 0.0), Point3::new(0.0, 0.1, 0.0)],
+            (100.0, 8000.0),
+        )
+        .unwrap();
+        let (s, c) = e_deg.to_radians().sin_cos();
+        let fold = FloorFold {
+            array_height_m: 0.5,
+            reflection: 0.6,
+            lobe: pattern.lobe(None),
+            ceiling_m: None,
+            vertical_spread: rho,
+        };
+        Ray {
+            origin_in_map: Point3::new(0.0, 0.0, 0.5),
+            direction_in_map: Unit::new_normalize(Vector3::new(c * 0.6, c * 0.8, s)),
+            sigma_rad: 1f64.to_radians(),
+            origin_sigma_m: 0.0,
+            fold: Some(fold),
+        }
+    }
+
+    #[test]
+    fn a_planar_arrays_elevation_is_noisier_near_its_plane() {
+        let sigma = 1f64.to_radians();
+        // On the plane of a flat array: the second-order limit, E[e²] = 0.8σ.
+        let (v, excess) = planar(0.0, Some(0.0)).vertical_excess().unwrap();
+        assert!(v.z > 0.999, "{v}");
+        assert!((sigma * sigma + excess - 0.8 * sigma).abs() < 1e-9 * sigma);
+        // 20° up with the 16SoundsUSB's spread: σ_v ≈ 2.65°.
+        let (v, excess) = planar(20.0, Some(0.003568)).vertical_excess().unwrap();
+        assert!(v.dot(&planar(20.0, None).direction_in_map).abs() < 1e-12);
+        assert!(((sigma * sigma + excess).sqrt().to_degrees() - 2.654).abs() < 0.01);
+        // Nothing extra without the model, straight up, or for an array as tall as wide.
+        assert!(planar(20.0, None).vertical_excess().is_none());
+        assert!(planar(90.0, Some(0.0)).vertical_excess().is_none());
+        assert!(planar(20.0, Some(1.0)).vertical_excess().is_none());
+        // The covariance on any tangent basis carries the excess along the vertical only.
+        let ray = planar(10.0, Some(0.0));
+        let (b1, b2) = tangent_basis(&ray.direction_in_map);
+        let basis = Matrix3x2::from_columns(&[b1, b2]);
+        let cov = ray.angular_covariance(&basis, 3.0);
+        let (v, excess) = ray.vertical_excess().unwrap();
+        let h = ray.direction_in_map.cross(&v);
+        let along = |t: Vector3<f64>| {
+            let p = basis.transpose() * t;
+            (p.transpose() * cov * p)[0]
+        };
+        assert!((along(h) - sigma * sigma).abs() < 1e-12);
+        assert!((along(v) - sigma * sigma - excess).abs() < 1e-12);
+        // And the Fisher information has less of it along the vertical tangent.
+        let x = ray.at(3.0);
+        let j = ray.fisher_at(&x);
+        assert!((h.transpose() * j * h)[0] > 10.0 * (v.transpose() * j * v)[0]);
     }
 
     #[test]

@@ -105,6 +105,16 @@ pub struct GeometryQuality {
 pub trait AsSensor {
     /// The sensor.
     fn sensor(&self) -> Sensor;
+
+    /// Fisher information about a source at `x` (m⁻²): by default
+    /// (I − uuᵀ)/(σ²r² + σ_origin²).
+    fn fisher_at(&self, x: &Point3<f64>) -> Matrix3<f64> {
+        let s = self.sensor();
+        let v = x - s.origin;
+        let r = v.norm().max(MIN_RANGE_M);
+        let u = v / r;
+        (Matrix3::identity() - u * u.transpose()) / s.lateral_variance(r)
+    }
 }
 
 impl AsSensor for Sensor {
@@ -117,6 +127,11 @@ impl AsSensor for Ray {
     fn sensor(&self) -> Sensor {
         Sensor::from(self)
     }
+
+    /// With the array's weaker elevation when it has one ([`Ray::fisher_at`]).
+    fn fisher_at(&self, x: &Point3<f64>) -> Matrix3<f64> {
+        Ray::fisher_at(self, x)
+    }
 }
 
 /// Evaluates the geometry of `sensors` for a source at `x`.
@@ -124,13 +139,13 @@ pub fn assess<S: AsSensor>(sensors: &[S], x: &Point3<f64>) -> GeometryQuality {
     let mut fisher = Matrix3::zeros();
     let mut g = Matrix3::zeros();
     let mut range_sum = 0.0;
-    for s in sensors {
-        let s = s.sensor();
+    for sensor in sensors {
+        let s = sensor.sensor();
         let v = x - s.origin;
         let r = v.norm().max(MIN_RANGE_M);
         let u = v / r;
         let p = Matrix3::identity() - u * u.transpose();
-        fisher += p / s.lateral_variance(r);
+        fisher += sensor.fisher_at(x);
         g += p / (r * r);
         range_sum += r;
     }

@@ -311,8 +311,13 @@ fn declared_planar_arrays_get_the_floor_image_model_and_others_do_not() {
     let band = [100.0, 8000.0];
     let lobe = array_pattern(&octagon(), (band[0], band[1])).expect("planar").lobe(None);
     let config = CoordinatorConfig::default();
-    let fold =
-        FloorFold { array_height_m: 0.48, reflection: config.doa.floor_reflection, lobe, ceiling_m: None };
+    let fold = FloorFold {
+        array_height_m: 0.48,
+        reflection: config.doa.floor_reflection,
+        lobe,
+        ceiling_m: None,
+        vertical_spread: None,
+    };
     let declared = folded_estimate(config.clone(), Some(band), &fold, None, &source);
     let undeclared = folded_estimate(config, None, &fold, None, &source);
     assert!((declared - source).norm() < 0.02, "declared: {declared} vs {source}");
@@ -331,7 +336,7 @@ fn a_doas_coherence_sets_the_floor_image_weight_when_asked() {
     let (coherence, pull) = (0.22, 0.06);
     let reflection = reverberant_reflection(coherence, 1.0, pull).unwrap();
     assert!(reflection > 0.8, "{reflection}");
-    let fold = FloorFold { array_height_m: 0.48, reflection, lobe, ceiling_m: None };
+    let fold = FloorFold { array_height_m: 0.48, reflection, lobe, ceiling_m: None, vertical_spread: None };
     let errors: Vec<f64> = [pull, 0.0]
         .into_iter()
         .map(|p| {

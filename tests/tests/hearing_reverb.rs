@@ -456,8 +456,8 @@ fn robot_in_a_corner_hears_the_source_and_not_the_noise() {
     assert!(silent.iter().all(|c| c.astray == 0.0), "{silent:?}");
 }
 
-/// Where the reverberant error lies, for the 16-microphone presets on the
-/// sweep's cases: per case the median over frames of the whole angle, of its
+/// Where the reverberant error lies, for the 16-microphone presets and the
+/// ReSpeaker 6 on the sweep's cases: per case the median over frames of the whole angle, of its
 /// horizontal part (azimuth error × cos of the true elevation), of the signed
 /// elevation error, and of the angle to what the coordinator's floor-image
 /// model (`soundmap_server::floor_image`, its default R = 0.6, the 3 m
@@ -474,7 +474,7 @@ fn error_parts_sweep() {
         "{:<24} {:>6} {:>15} {:>15} {:>17} {:>17}",
         "preset", "RT60", "whole", "horizontal", "elevation", "vs model"
     );
-    for preset in ["16soundsusb-pioneer", "16soundsusb-turtlebot"] {
+    for preset in ["16soundsusb-pioneer", "16soundsusb-turtlebot", "respeaker-6"] {
         let array = ArrayGeometry::load(preset).unwrap();
         let positions: Vec<Point3<f64>> = array.positions().collect();
         // The band the agent declares in its hello, as the coordinator sees it.
@@ -491,6 +491,7 @@ fn error_parts_sweep() {
                     reflection: 0.6,
                     lobe: pattern.lobe(None),
                     ceiling_m: Some(case.size.z),
+                    vertical_spread: None,
                 };
                 let modelled = case.rotation().inverse()
                     * fold.measured_direction(&case.array_at, &case.source).unwrap().into_inner();

@@ -277,6 +277,7 @@ impl Coordinator {
         let narrow_reflection = self.config.doa.narrow_band_reflection;
         let pull = self.config.doa.reverberant_pull;
         let ceiling_m = self.config.doa.ceiling_height_m;
+        let elevation_noise = self.config.doa.planar_elevation_noise;
         let history_ns = self.config.alignment.history_ms as i64 * 1_000_000;
         let max_history = self.config.server.max_history_per_robot;
         let entry = match self.entry_mut(conn, "observation") {
@@ -335,8 +336,13 @@ impl Coordinator {
                     .filter(|_| pull > 0.0)
                     .and_then(|c| reverberant_reflection(c, share?, pull))
                     .unwrap_or_else(|| band_reflection(reflection, narrow_reflection, share));
-                let fold =
-                    pattern.map(|p| FloorFold { array_height_m, reflection, lobe: p.lobe(band), ceiling_m });
+                let fold = pattern.map(|p| FloorFold {
+                    array_height_m,
+                    reflection,
+                    lobe: p.lobe(band),
+                    ceiling_m,
+                    vertical_spread: elevation_noise.then(|| p.vertical_spread()),
+                });
                 let ray = Ray {
                     fold,
                     ..Ray::from_doa(

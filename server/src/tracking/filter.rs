@@ -8,7 +8,7 @@
 //!
 //! ```text
 //! ν = log-map of the measured direction d in the tangent plane of v̂   (≈ B̂ᵀd, 2-vector)
-//! H = [ B̂ᵀ / r̂ , 0₂ₓ₃ ]          R = σ_eff² · inflation · I₂
+//! H = [ B̂ᵀ / r̂ , 0₂ₓ₃ ]          R = σ_eff² · inflation · I₂  (+ vertical excess)
 //! S = HPHᵀ + R ,  K = PHᵀS⁻¹ ,  P⁺ = (I − KH)P(I − KH)ᵀ + KRKᵀ   (Joseph form)
 //! ```
 //!
@@ -24,7 +24,9 @@
 //! hemisphere and pulled toward the floor image). B̂ is then built around h(p̂),
 //! and H's position block is B̂ᵀ ∂h/∂p with the basis held fixed, ∂h/∂p by
 //! forward differences ([`crate::floor_image::FloorFold::derivatives`]), since
-//! h has no simple closed form.
+//! h has no simple closed form. Such an array also resolves elevation worse
+//! than azimuth: R then carries the extra variance along the vertical tangent
+//! ([`Ray::angular_covariance`], [`Ray::vertical_excess`]).
 
 use nalgebra::{
     Matrix2, Matrix2x6, Matrix3, Matrix3x2, Matrix6, Matrix6x2, Point3, Vector2, Vector3, Vector6,
@@ -150,8 +152,13 @@ pub struct DoaInnovation {
     pub residual: Vector2<f64>,
     /// Measurement Jacobian H = [B̂ᵀ/r̂, 0] (1/m).
     pub jacobian: Matrix2x6<f64>,
-    /// Measurement noise variance per tangent axis, σ_eff² × inflation (rad²).
+    /// Measurement noise variance per tangent axis, σ_eff² × inflation (rad²):
+    /// the horizontal axis's for a ray with a vertical excess.
     pub noise_variance_rad2: f64,
+    /// Measurement noise covariance R on (b₁, b₂), × inflation (rad²):
+    /// `noise_variance_rad2`·I, plus the vertical excess of an array that
+    /// resolves elevation worse ([`Ray::angular_covariance`]).
+    pub noise_covariance: Matrix2<f64>,
     /// Innovation covariance S = HPHᵀ + R (rad²).
     pub covariance: Matrix2<f64>,
     /// S⁻¹.
@@ -192,6 +199,7 @@ pub fn doa_innovation(state: &CvState, ray: &Ray, model: &DoaNoiseModel) -> Resu
 
     let ray = Ray { sigma_rad: ray.sigma_rad.max(model.min_sigma_rad), ..*ray };
     let noise_variance_rad2 = ray.angular_variance(range_m) * model.variance_inflation;
+    let noise_covariance = ray.angular_covariance(&basis, range_m) * model.variance_inflation;
     let mut jacobian = Matrix2x6::zeros();
     if let (Some(fold), Some(at_estimate)) = (ray.fold, fold_at_estimate) {
         // B̂ᵀ ∂h/∂p with the basis held fixed (h by forward differences).
@@ -204,9 +212,7 @@ pub fn doa_innovation(state: &CvState, ray: &Ray, model: &DoaNoiseModel) -> Resu
     } else {
         jacobian.fixed_view_mut::<2, 3>(0, 0).copy_from(&(basis.transpose() / range_m));
     }
-    let covariance = symmetric2(
-        &(jacobian * state.covariance * jacobian.transpose() + Matrix2::identity() * noise_variance_rad2),
-    );
+    let covariance = symmetric2(&(jacobian * state.covariance * jacobian.transpose() + noise_covariance));
     let det = covariance[(0, 0)] * covariance[(1, 1)] - covariance[(0, 1)] * covariance[(1, 0)];
     if !(det > 0.0 && det.is_finite()) {
         return Err(Unusable::NonFinite);
@@ -214,7 +220,16 @@ pub fn doa_innovation(state: &CvState, ray: &Ray, model: &DoaNoiseModel) -> Resu
     let covariance_inv =
         Matrix2::new(covariance[(1, 1)], -covariance[(0, 1)], -covariance[(1, 0)], covariance[(0, 0)]) / det;
     let nis = (residual.transpose() * covariance_inv * residual)[0];
-    Ok(DoaInnovation { residual, jacobian, noise_variance_rad2, covariance, covariance_inv, nis, range_m })
+    Ok(DoaInnovation {
+        residual,
+        jacobian,
+        noise_variance_rad2,
+        noise_covariance,
+        covariance,
+        covariance_inv,
+        nis,
+        range_m,
+    })
 }
 
 /// The Joseph-form update of `state` with `innovation`; `None` when the result
@@ -224,7 +239,7 @@ pub fn joseph_update(state: &CvState, innovation: &DoaInnovation) -> Option<CvSt
     let h = &innovation.jacobian;
     let gain: Matrix6x2<f64> = p * h.transpose() * innovation.covariance_inv;
     let i_kh = Matrix6::identity() - gain * h;
-    let covariance = i_kh * p * i_kh.transpose() + gain * gain.transpose() * innovation.noise_variance_rad2;
+    let covariance = i_kh * p * i_kh.transpose() + gain * innovation.noise_covariance * gain.transpose();
     let next = CvState { mean: state.mean + gain * innovation.residual, covariance: symmetric(&covariance) };
     next.is_finite().then_some(next)
 }
@@ -264,6 +279,36 @@ mod tests {
             origin_sigma_m: 0.0,
             fold: None,
         }
+    }
+
+    /// A planar array's weaker elevation ([`Ray::vertical_excess`]) enters R:
+    /// the update leaves more of the height's variance than the same DoA with
+    /// one σ, and the innovation is normalized by it.
+    #[test]
+    fn a_planar_arrays_elevation_noise_enters_the_update() {
+        let s = state();
+        let o = Point3::new(-1.0, 0.5, 0.5);
+        let positions = [Point3::new(0.1, 0.0, 0.0), Point3::new(-0.1, 0.0, 0.0), Point3::new(0.0, 0.1, 0.0)];
+        let pattern = crate::floor_image::ArrayPattern::for_array(&positions, (100.0, 8000.0)).unwrap();
+        let fold = crate::floor_image::FloorFold {
+            array_height_m: 0.5,
+            reflection: 0.0,
+            lobe: pattern.lobe(None),
+            ceiling_m: None,
+            vertical_spread: None,
+        };
+        let folded = Ray { sigma_rad: 0.02, fold: Some(fold), ..ray_through(o, Point3::new(2.1, 2.9, 1.7)) };
+        let planar = Ray {
+            fold: Some(crate::floor_image::FloorFold { vertical_spread: Some(0.0), ..fold }),
+            ..folded
+        };
+        let (one, two) =
+            (doa_innovation(&s, &folded, &MODEL).unwrap(), doa_innovation(&s, &planar, &MODEL).unwrap());
+        assert!(one.noise_covariance.determinant() < two.noise_covariance.determinant());
+        assert_eq!(one.noise_variance_rad2, two.noise_variance_rad2);
+        assert!(two.nis < one.nis);
+        let (a, b) = (joseph_update(&s, &one).unwrap(), joseph_update(&s, &two).unwrap());
+        assert!(b.covariance[(2, 2)] > a.covariance[(2, 2)]);
     }
 
     #[test]

@@ -1,6 +1,6 @@
 //! Levenberg–Marquardt refinement on angular residuals with a robust loss (theory §1.5, §1.7).
 
-use nalgebra::{Matrix2x3, Matrix3, Point3, Vector2, Vector3};
+use nalgebra::{Matrix2, Matrix2x3, Matrix3, Point3, Vector2, Vector3};
 use serde::Deserialize;
 
 use crate::ray::{MIN_RANGE_M, Ray, tangent_basis};
@@ -89,12 +89,25 @@ fn residual(ray: &Ray, term: &Term, x: &Point3<f64>) -> Option<(Vector2<f64>, Ve
     Some((term.b * u, u, r))
 }
 
+/// The residual's information matrix W = R⁻¹ at range `r`, R the ray's
+/// angular covariance on the term's tangent axes ([`Ray::angular_covariance`]:
+/// σ² on both, more along the vertical for an array that resolves elevation
+/// worse).
+fn weight(ray: &Ray, term: &Term, r: f64) -> Matrix2<f64> {
+    let r = r.max(MIN_RANGE_M);
+    if ray.vertical_excess().is_none() {
+        return Matrix2::identity() / ray.angular_variance(r);
+    }
+    let cov = ray.angular_covariance(&term.b.transpose(), r);
+    cov.try_inverse().unwrap_or_else(|| Matrix2::identity() / ray.angular_variance(r))
+}
+
 /// Robust cost at x, or `None` if x is behind an array.
 fn total_cost(rays: &[Ray], terms: &[Term], x: &Point3<f64>, loss: RobustLoss) -> Option<(f64, f64)> {
     let (mut robust, mut chi2) = (0.0, 0.0);
     for (ray, t) in rays.iter().zip(terms) {
         let (e, _, r) = residual(ray, t, x)?;
-        let s = e.norm_squared() / ray.angular_variance(r.max(MIN_RANGE_M));
+        let s = (e.transpose() * weight(ray, t, r) * e)[0];
         robust += loss.cost(s);
         chi2 += s;
     }
@@ -128,7 +141,7 @@ pub fn refine(rays: &[Ray], init: Point3<f64>, loss: RobustLoss, max_iterations:
         let mut g = Vector3::zeros();
         for (ray, t) in rays.iter().zip(&terms) {
             let (e, u, r) = residual(ray, t, &x).expect("current point is in front of every array");
-            let w = 1.0 / ray.angular_variance(r.max(MIN_RANGE_M));
+            let w = weight(ray, t, r);
             let jac = match ray.fold {
                 // A folded ray's prediction has no simple closed form: Bᵀ ∂h/∂x
                 // by forward differences from h(x) = u (FloorFold::derivatives).
@@ -144,9 +157,9 @@ pub fn refine(rays: &[Ray], init: Point3<f64>, loss: RobustLoss, max_iterations:
                 }
                 None => t.b * (Matrix3::identity() - u * u.transpose()) / r,
             };
-            let omega = loss.weight(e.norm_squared() * w) * w;
-            h += jac.transpose() * jac * omega;
-            g += jac.transpose() * e * omega;
+            let omega = w * loss.weight((e.transpose() * w * e)[0]);
+            h += jac.transpose() * omega * jac;
+            g += jac.transpose() * omega * e;
         }
         let mut improved = false;
         for _ in 0..12 {
