@@ -101,7 +101,12 @@ pub struct PlannerConfig {
     /// Robots with goals keep them until the source has moved this far from
     /// where it was planned for (m), unless a goal becomes infeasible. Default 0.5.
     pub follow_distance_m: f64,
-    /// The source is predicted this far ahead with its velocity (s). Default 1.0.
+    /// The source is predicted this far ahead with its velocity (s): the
+    /// pattern is built around that point and the keep-out runs along the
+    /// path to it. Default 1.0. Over the 20-seed sweeps (BENCHMARKS.md, "The
+    /// planning lead") 2.0 left the band in fewer runs (16 → 10 of 120 below
+    /// 95 %; the 1.0 m/s walker 4 → 1) but issued more goals within 1 m of
+    /// the true source (2 → 12), and 1.5 was no better than 1.0.
     pub source_lead_s: f64,
     /// No planning around a source whose √tr P exceeds this (m). Default 3.0,
     /// which still lets the planner fix the paper's θ ≈ 10° geometry at 3 m (≈ 1.4 m).
