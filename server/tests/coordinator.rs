@@ -304,20 +304,29 @@ fn octagon() -> Vec<Point3<f64>> {
         .collect()
 }
 
-#[test]
-fn declared_planar_arrays_get_the_floor_image_model_and_others_do_not() {
-    use soundmap_server::floor_image::{FloorFold, array_pattern};
-    let source = Point3::new(0.0, 0.0, 1.2);
-    let band = [100.0, 8000.0];
-    let lobe = array_pattern(&octagon(), (band[0], band[1])).expect("planar").lobe(None);
-    let config = CoordinatorConfig::default();
-    let fold = FloorFold {
+/// The SRP band the [`octagon`] robots declare (Hz).
+const OCTAGON_BAND: [f64; 2] = [100.0, 8000.0];
+
+/// What an [`octagon`] array 0.48 m above the floor measures, with the
+/// floor's reflection coefficient `reflection`, one σ on both axes.
+fn octagon_fold(reflection: f64) -> soundmap_server::floor_image::FloorFold {
+    let [lo, hi] = OCTAGON_BAND;
+    let lobe = soundmap_server::floor_image::array_pattern(&octagon(), (lo, hi)).expect("planar").lobe(None);
+    soundmap_server::floor_image::FloorFold {
         array_height_m: 0.48,
-        reflection: config.doa.floor_reflection,
+        reflection,
         lobe,
         ceiling_m: None,
         vertical_spread: None,
-    };
+    }
+}
+
+#[test]
+fn declared_planar_arrays_get_the_floor_image_model_and_others_do_not() {
+    let source = Point3::new(0.0, 0.0, 1.2);
+    let band = OCTAGON_BAND;
+    let config = CoordinatorConfig::default();
+    let fold = octagon_fold(config.doa.floor_reflection);
     let declared = folded_estimate(config.clone(), Some(band), &fold, None, &source);
     let undeclared = folded_estimate(config, None, &fold, None, &source);
     assert!((declared - source).norm() < 0.02, "declared: {declared} vs {source}");
@@ -329,14 +338,13 @@ fn declared_planar_arrays_get_the_floor_image_model_and_others_do_not() {
 /// `floor_reflection` does, whatever the DoA says.
 #[test]
 fn a_doas_coherence_sets_the_floor_image_weight_when_asked() {
-    use soundmap_server::floor_image::{FloorFold, array_pattern, reverberant_reflection};
+    use soundmap_server::floor_image::reverberant_reflection;
     let source = Point3::new(0.0, 0.0, 1.2);
-    let band = [100.0, 8000.0];
-    let lobe = array_pattern(&octagon(), (band[0], band[1])).expect("planar").lobe(None);
+    let band = OCTAGON_BAND;
     let (coherence, pull) = (0.22, 0.06);
     let reflection = reverberant_reflection(coherence, 1.0, pull).unwrap();
     assert!(reflection > 0.8, "{reflection}");
-    let fold = FloorFold { array_height_m: 0.48, reflection, lobe, ceiling_m: None, vertical_spread: None };
+    let fold = octagon_fold(reflection);
     let errors: Vec<f64> = [pull, 0.0]
         .into_iter()
         .map(|p| {
@@ -356,21 +364,12 @@ fn a_doas_coherence_sets_the_floor_image_weight_when_asked() {
 /// nearly unchanged, and the same position.
 #[test]
 fn planar_elevation_noise_widens_the_published_height_only() {
-    use soundmap_server::floor_image::{FloorFold, array_pattern};
     let source = Point3::new(0.0, 0.0, 1.2);
-    let band = [100.0, 8000.0];
-    let lobe = array_pattern(&octagon(), (band[0], band[1])).expect("planar").lobe(None);
     let published = |on: bool| {
         let mut config = CoordinatorConfig::default();
         config.doa.planar_elevation_noise = on;
-        let fold = FloorFold {
-            array_height_m: 0.48,
-            reflection: config.doa.floor_reflection,
-            lobe,
-            ceiling_m: None,
-            vertical_spread: None,
-        };
-        folded_published(config, Some(band), &fold, None, &source)
+        let fold = octagon_fold(config.doa.floor_reflection);
+        folded_published(config, Some(OCTAGON_BAND), &fold, None, &source)
     };
     let (off_p, off_cov) = published(false);
     let (on_p, on_cov) = published(true);
