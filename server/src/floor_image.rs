@@ -186,9 +186,12 @@
 //! a source highest, whose elevations carry biases the model above does not
 //! take out (the ReSpeaker 6's +11°, reported with the same 1° σ floor as the
 //! 16-microphone arrays), and heights rise (`cocktail` +0.08 → +0.16 m,
-//! OSPA 0.370 → 0.374 m, `cocktail-active` 0.347 → 0.379 m; the active
-//! single-source scenarios lose θ in band on some seeds). It waits for
-//! agents that report a σ as honest for small arrays as for large ones.
+//! OSPA 0.370 → 0.374 m, `cocktail-active` 0.347 → 0.379 m; `three-robots`,
+//! seeds 1–10: RSE p95 median 0.105 → 0.154 m, height error +0.01 →
+//! +0.05 m). With the ReSpeaker's σ floor scaled by its aperture as well,
+//! `cocktail` reaches 0.321 m with honest trusted estimates, but
+//! `three-robots` and `crossing` still lose. It waits for agents that report
+//! a σ as honest for small arrays as for large ones.
 //!
 //! Assumptions, stated: the array is level (its plane parallel to the floor), the
 //! floor is the plane `doa.base_height_m` below the robot's base frame, and the
