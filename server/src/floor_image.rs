@@ -187,8 +187,8 @@
 //! take out (the ReSpeaker 6's +11°, reported with the same 1° σ floor as the
 //! 16-microphone arrays), and heights rise (`cocktail` +0.08 → +0.16 m,
 //! OSPA 0.370 → 0.374 m, `cocktail-active` 0.347 → 0.379 m; `three-robots`,
-//! seeds 1–10: RSE p95 median 0.105 → 0.154 m, height error +0.01 →
-//! +0.05 m). With the ReSpeaker's σ floor scaled by its aperture as well,
+//! seeds 1–10: RSE p95 median 0.105 → 0.154 m, mean height error +0.02 →
+//! +0.06 m). With the ReSpeaker's σ floor scaled by its aperture as well,
 //! `cocktail` reaches 0.321 m with honest trusted estimates, but
 //! `three-robots` and `crossing` still lose. It waits for agents that report
 //! a σ as honest for small arrays as for large ones.
