@@ -772,6 +772,16 @@ impl FloorFold {
     }
 }
 
+/// For other modules' tests: what a level three-microphone array (0.1 m
+/// arms, no vertical spread) 0.5 m above the floor measures, with the
+/// floor's `reflection` and the elevation model's `vertical_spread`.
+#[cfg(test)]
+pub(crate) fn three_mic_fold(reflection: f64, vertical_spread: Option<f64>) -> FloorFold {
+    let positions = [Point3::new(0.1, 0.0, 0.0), Point3::new(-0.1, 0.0, 0.0), Point3::new(0.0, 0.1, 0.0)];
+    let pattern = ArrayPattern::for_array(&positions, (100.0, 8000.0)).expect("planar");
+    FloorFold { array_height_m: 0.5, reflection, lobe: pattern.lobe(None), ceiling_m: None, vertical_spread }
+}
+
 #[cfg(test)]
 mod tests {
     #[test]

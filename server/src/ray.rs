@@ -3,6 +3,7 @@
 use nalgebra::{Isometry3, Matrix2, Matrix3, Matrix3x2, Matrix6, Point3, Unit, Vector2, Vector3};
 
 use crate::floor_image::FloorFold;
+use crate::uncertainty::{AsSensor, Sensor};
 
 /// Shortest range used when a weight needs a range (m). Closer than this,
 /// the far-field DoA model does not hold anyway (theory §1.3).
@@ -120,8 +121,40 @@ impl Ray {
     /// ray's): [`Ray::angular_variance`] on both, plus the vertical excess
     /// ([`Ray::vertical_excess`]) along the vertical tangent's projection.
     pub fn angular_covariance(&self, basis: &Matrix3x2<f64>, range_m: f64) -> Matrix2<f64> {
+        self.covariance_with(self.vertical_excess(), basis, range_m)
+    }
+
+    /// The information matrix R⁻¹ (rad⁻²) of [`Ray::angular_covariance`] on
+    /// `basis`: I / [`Ray::angular_variance`] without a vertical excess (or
+    /// when R cannot be inverted).
+    pub fn angular_information(&self, basis: &Matrix3x2<f64>, range_m: f64) -> Matrix2<f64> {
+        self.information_with(self.vertical_excess(), basis, range_m)
+    }
+
+    /// Fisher information (m⁻²) the ray's DoA carries about a source at `x`:
+    /// (I − uuᵀ)/(σ²r² + σ_origin²) with u toward `x`, or with the vertical
+    /// excess, B R⁻¹ Bᵀ / r² with B the tangent basis at u and R⁻¹
+    /// [`Ray::angular_information`].
+    pub fn fisher_at(&self, x: &Point3<f64>) -> Matrix3<f64> {
+        let Some(excess) = self.vertical_excess() else {
+            return Sensor::from(self).fisher_at(x);
+        };
+        let v = x - self.origin_in_map;
+        let r = v.norm().max(MIN_RANGE_M);
+        let (b1, b2) = tangent_basis(&Unit::new_unchecked(v / r));
+        let basis = Matrix3x2::from_columns(&[b1, b2]);
+        basis * self.information_with(Some(excess), &basis, r) * basis.transpose() / (r * r)
+    }
+
+    /// [`Ray::angular_covariance`] with the vertical excess already known.
+    fn covariance_with(
+        &self,
+        excess: Option<(Vector3<f64>, f64)>,
+        basis: &Matrix3x2<f64>,
+        range_m: f64,
+    ) -> Matrix2<f64> {
         let iso = Matrix2::identity() * self.angular_variance(range_m);
-        match self.vertical_excess() {
+        match excess {
             Some((v, excess)) => {
                 let p: Vector2<f64> = basis.transpose() * v;
                 iso + p * p.transpose() * excess
@@ -130,22 +163,17 @@ impl Ray {
         }
     }
 
-    /// Fisher information (m⁻²) the ray's DoA carries about a source at `x`:
-    /// (I − uuᵀ)/(σ²r² + σ_origin²) with u toward `x`, or with the vertical
-    /// excess, B R⁻¹ Bᵀ / r² with B the tangent basis at u and R
-    /// [`Ray::angular_covariance`].
-    pub fn fisher_at(&self, x: &Point3<f64>) -> Matrix3<f64> {
-        let v = x - self.origin_in_map;
-        let r = v.norm().max(MIN_RANGE_M);
-        let u = v / r;
-        if self.vertical_excess().is_none() {
-            return (Matrix3::identity() - u * u.transpose()) / self.lateral_variance(r);
-        }
-        let (b1, b2) = tangent_basis(&Unit::new_unchecked(u));
-        let basis = Matrix3x2::from_columns(&[b1, b2]);
-        match self.angular_covariance(&basis, r).try_inverse() {
-            Some(w) => basis * w * basis.transpose() / (r * r),
-            None => (Matrix3::identity() - u * u.transpose()) / self.lateral_variance(r),
+    /// [`Ray::angular_information`] with the vertical excess already known.
+    fn information_with(
+        &self,
+        excess: Option<(Vector3<f64>, f64)>,
+        basis: &Matrix3x2<f64>,
+        range_m: f64,
+    ) -> Matrix2<f64> {
+        let iso = || Matrix2::identity() / self.angular_variance(range_m);
+        match excess {
+            Some(_) => self.covariance_with(excess, basis, range_m).try_inverse().unwrap_or_else(iso),
+            None => iso(),
         }
     }
 
@@ -206,19 +234,8 @@ mod tests {
 
     /// A level planar array's DoA at elevation `e_deg`, σ 1°, vertical spread `rho`.
     fn planar(e_deg: f64, rho: Option<f64>) -> Ray {
-        let pattern = crate::floor_image::ArrayPattern::for_array(
-            &[Point3::new(0.1, 0.0, 0.0), Point3::new(-0.1, 0.0, 0.0), Point3::new(0.0, 0.1, 0.0)],
-            (100.0, 8000.0),
-        )
-        .unwrap();
         let (s, c) = e_deg.to_radians().sin_cos();
-        let fold = FloorFold {
-            array_height_m: 0.5,
-            reflection: 0.6,
-            lobe: pattern.lobe(None),
-            ceiling_m: None,
-            vertical_spread: rho,
-        };
+        let fold = crate::floor_image::three_mic_fold(0.6, rho);
         Ray {
             origin_in_map: Point3::new(0.0, 0.0, 0.5),
             direction_in_map: Unit::new_normalize(Vector3::new(c * 0.6, c * 0.8, s)),

@@ -34,12 +34,7 @@ impl Sensor {
 /// Fisher information about a source at `x` (m⁻²):
 /// J = Σᵢ (I − uᵢuᵢᵀ) / (σᵢ²rᵢ² + σ_origin,ᵢ²), uᵢ = (x − oᵢ)/rᵢ (theory §2.1).
 pub fn fisher_information(sensors: &[Sensor], x: &Point3<f64>) -> Matrix3<f64> {
-    sensors.iter().fold(Matrix3::zeros(), |acc, s| {
-        let v = x - s.origin;
-        let r = v.norm().max(MIN_RANGE_M);
-        let u = v / r;
-        acc + (Matrix3::identity() - u * u.transpose()) / s.lateral_variance(r)
-    })
+    sensors.iter().fold(Matrix3::zeros(), |acc, s| acc + s.fisher_at(x))
 }
 
 /// Angle at `x` between the directions toward `a` and `b`, degrees in [0, 180].

@@ -288,20 +288,9 @@ mod tests {
     fn a_planar_arrays_elevation_noise_enters_the_update() {
         let s = state();
         let o = Point3::new(-1.0, 0.5, 0.5);
-        let positions = [Point3::new(0.1, 0.0, 0.0), Point3::new(-0.1, 0.0, 0.0), Point3::new(0.0, 0.1, 0.0)];
-        let pattern = crate::floor_image::ArrayPattern::for_array(&positions, (100.0, 8000.0)).unwrap();
-        let fold = crate::floor_image::FloorFold {
-            array_height_m: 0.5,
-            reflection: 0.0,
-            lobe: pattern.lobe(None),
-            ceiling_m: None,
-            vertical_spread: None,
-        };
-        let folded = Ray { sigma_rad: 0.02, fold: Some(fold), ..ray_through(o, Point3::new(2.1, 2.9, 1.7)) };
-        let planar = Ray {
-            fold: Some(crate::floor_image::FloorFold { vertical_spread: Some(0.0), ..fold }),
-            ..folded
-        };
+        let fold = |spread| Some(crate::floor_image::three_mic_fold(0.0, spread));
+        let folded = Ray { sigma_rad: 0.02, fold: fold(None), ..ray_through(o, Point3::new(2.1, 2.9, 1.7)) };
+        let planar = Ray { fold: fold(Some(0.0)), ..folded };
         let (one, two) =
             (doa_innovation(&s, &folded, &MODEL).unwrap(), doa_innovation(&s, &planar, &MODEL).unwrap());
         assert!(one.noise_covariance.determinant() < two.noise_covariance.determinant());

@@ -90,16 +90,11 @@ fn residual(ray: &Ray, term: &Term, x: &Point3<f64>) -> Option<(Vector2<f64>, Ve
 }
 
 /// The residual's information matrix W = R⁻¹ at range `r`, R the ray's
-/// angular covariance on the term's tangent axes ([`Ray::angular_covariance`]:
+/// angular covariance on the term's tangent axes ([`Ray::angular_information`]:
 /// σ² on both, more along the vertical for an array that resolves elevation
 /// worse).
 fn weight(ray: &Ray, term: &Term, r: f64) -> Matrix2<f64> {
-    let r = r.max(MIN_RANGE_M);
-    if ray.vertical_excess().is_none() {
-        return Matrix2::identity() / ray.angular_variance(r);
-    }
-    let cov = ray.angular_covariance(&term.b.transpose(), r);
-    cov.try_inverse().unwrap_or_else(|| Matrix2::identity() / ray.angular_variance(r))
+    ray.angular_information(&term.b.transpose(), r.max(MIN_RANGE_M))
 }
 
 /// Robust cost at x, or `None` if x is behind an array.
