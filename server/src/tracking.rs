@@ -5,6 +5,8 @@
 //! - [`imm`]: a still and a moving CV mode mixed by an IMM filter (the published
 //!   state is their mixture);
 //! - [`lag_buffer`]: the fixed-lag buffer that applies late DoAs exactly;
+//! - [`smoother`]: the fixed-lag smoother, the track's state a lag behind the
+//!   newest DoA from the DoAs on both sides of it;
 //! - [`lifecycle`]: tentative → confirmed → lost;
 //! - `step`: what one DoA does to the replayable state of a track;
 //! - [`config`]: [`TrackerConfig`] and its validation.
@@ -20,7 +22,9 @@
 //! 2. feed every robot's DoA ray for this source, in any order within the lag, to
 //!    [`SourceTracker::update`]; each is gated by χ² (2 dof) and applied or counted;
 //! 3. call [`SourceTracker::maintain`] with `now` regularly (lifecycle timeouts);
-//! 4. publish [`SourceTracker::estimate`] or [`SourceTracker::predict_to`]`(now)`:
+//! 4. publish [`SourceTracker::estimate`] or [`SourceTracker::predict_to`]`(now)`
+//!    and, beside it, [`SourceTracker::smoothed`] (the state
+//!    [`TrackerConfig::smoothing_lag_s`] earlier, smoothed):
 //!    its [`TrackEstimate::trusted`] is false unless the track is confirmed, its
 //!    position RMS is within [`TrackerConfig::trusted_max_rms_m`], and a second
 //!    robot's DoA was accepted within the confirmation window (one robot's
@@ -33,7 +37,10 @@ pub mod lag_buffer;
 pub mod lifecycle;
 pub mod noise;
 mod outcome;
+pub mod smoother;
 mod step;
+
+use std::collections::VecDeque;
 
 use nalgebra::{Matrix3, Matrix6, Point3, Vector3};
 use soundmap_proto::Stamp;
@@ -50,6 +57,7 @@ use imm::ImmState;
 use lag_buffer::{Insertion, LagBuffer, Refusal};
 use lifecycle::{Confirmation, check_loss};
 use noise::Learned;
+use smoother::HISTORY_STEP_S;
 use step::{Observation, Snapshot, StepParams, step};
 
 /// What became of an initialization.
@@ -138,6 +146,30 @@ impl TrackEstimate {
     }
 }
 
+/// A track's fixed-lag smoothed state (see [`smoother`]).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct SmoothedEstimate {
+    /// Id of the track.
+    pub track_id: u64,
+    /// Time the state refers to: about `lag_s` before the newest applied DoA.
+    pub stamp: Stamp,
+    /// How far behind the newest applied DoA `stamp` is (s).
+    pub lag_s: f64,
+    /// Position, map frame (m).
+    pub position_in_map: Point3<f64>,
+    /// Velocity, map frame (m/s).
+    pub velocity_in_map: Vector3<f64>,
+    /// Covariance of [x y z vx vy vz] (SI).
+    pub covariance: Matrix6<f64>,
+}
+
+impl SmoothedEstimate {
+    /// The 3×3 position covariance (m²).
+    pub fn position_covariance(&self) -> Matrix3<f64> {
+        self.covariance.fixed_view::<3, 3>(0, 0).into_owned()
+    }
+}
+
 #[derive(Clone, Debug)]
 struct Track {
     id: u64,
@@ -147,6 +179,58 @@ struct Track {
     before_track: u64,
     /// θ of the triangulation it started from (degrees), when it did.
     init_theta_deg: Option<f64>,
+    /// Filtered states settled out of the lag buffer for the smoother, at
+    /// least [`HISTORY_STEP_S`] apart, oldest first (see [`Track::settle`]).
+    settled: VecDeque<(Stamp, ImmState)>,
+    /// The last smoothed state and the newest filter stamp it was computed at.
+    smoothed: Option<(Stamp, SmoothedEstimate)>,
+}
+
+impl Track {
+    /// Keeps the lag buffer's base for the smoother when it is a new filter
+    /// state at least [`HISTORY_STEP_S`] after the last kept, and drops kept
+    /// states no longer needed for a state `lag_ns` behind the newest.
+    fn settle(&mut self, lag_ns: i64) {
+        let (base, _) = self.buffer.base();
+        let (t, filter) = (base.filter_stamp, base.filter);
+        if self.settled.back().is_none_or(|(last, _)| t.seconds_since(*last) >= HISTORY_STEP_S) {
+            self.settled.push_back((t, filter));
+        }
+        let horizon = self.buffer.latest().0.filter_stamp.plus_ns(-lag_ns);
+        while self.settled.len() >= 2 && self.settled[1].0 <= horizon {
+            self.settled.pop_front();
+        }
+    }
+
+    /// The smoothed state `lag_ns` behind the newest applied DoA, or `None`
+    /// while the track is younger than that.
+    fn smooth(&self, lag_ns: i64, modes: &imm::Modes) -> Option<SmoothedEstimate> {
+        let (latest, _) = self.buffer.latest();
+        let newest = latest.filter_stamp;
+        let mut history: Vec<(Stamp, &ImmState)> = Vec::with_capacity(self.settled.len() + 64);
+        history.extend(self.settled.iter().map(|(t, s)| (*t, s)));
+        for (snapshot, _) in self.buffer.states() {
+            let t = snapshot.filter_stamp;
+            if history.last().is_none_or(|(last, _)| t.seconds_since(*last) >= HISTORY_STEP_S) {
+                history.push((t, &snapshot.filter));
+            }
+        }
+        if history.last().is_none_or(|(last, _)| *last < newest) {
+            history.push((newest, &latest.filter));
+        }
+        let target = newest.plus_ns(-lag_ns);
+        let at = history.partition_point(|(t, _)| *t <= target).checked_sub(1)?;
+        let state = smoother::smooth(&history, at, modes)?;
+        let stamp = history[at].0;
+        Some(SmoothedEstimate {
+            track_id: self.id,
+            stamp,
+            lag_s: newest.seconds_since(stamp),
+            position_in_map: state.position(),
+            velocity_in_map: state.velocity(),
+            covariance: state.covariance,
+        })
+    }
 }
 
 /// Tracks one source from DoAs: a CV EKF with per-DoA updates, χ² gating, an
@@ -245,6 +329,8 @@ impl SourceTracker {
             too_late: 0,
             before_track: 0,
             init_theta_deg: None,
+            settled: VecDeque::from([(stamp, start.filter)]),
+            smoothed: None,
         });
         InitOutcome::Started { track_id: self.last_id }
     }
@@ -332,7 +418,18 @@ impl SourceTracker {
         };
         let observation = Observation { robot, ray: *ray };
         match track.buffer.insert(stamp, observation, |s, t, o| step(s, t, o, &params)) {
-            Insertion::Processed { result, .. } => result,
+            Insertion::Processed { result, .. } => {
+                let lag_ns = self.config.smoothing_lag_ns();
+                if lag_ns > 0 {
+                    track.settle(lag_ns);
+                    let newest = track.buffer.latest().0.filter_stamp;
+                    let due = track.smoothed.is_none_or(|(at, _)| newest.seconds_since(at) >= HISTORY_STEP_S);
+                    if due && matches!(result, UpdateOutcome::Applied { .. }) {
+                        track.smoothed = track.smooth(lag_ns, &params.modes).map(|e| (newest, e));
+                    }
+                }
+                result
+            }
             Insertion::Refused(Refusal::TooLate) => {
                 track.too_late += 1;
                 UpdateOutcome::TooLate
@@ -376,6 +473,15 @@ impl SourceTracker {
         let track = self.track.as_ref()?;
         let (s, _) = track.buffer.latest();
         Some(self.describe(track, s, s.stamp, s.filter_at(s.stamp, &self.params.modes).combined()))
+    }
+
+    /// The track's fixed-lag smoothed state: about
+    /// [`TrackerConfig::smoothing_lag_s`] behind the newest applied DoA,
+    /// from the DoAs on both sides of it (see [`smoother`]). Refreshed at
+    /// most every [`HISTORY_STEP_S`] of DoA time. `None` without a track,
+    /// with smoothing off, or while the track is younger than the lag.
+    pub fn smoothed(&self) -> Option<SmoothedEstimate> {
+        self.track.as_ref()?.smoothed.map(|(_, e)| e)
     }
 
     /// The estimate predicted to `stamp` without changing the track (a stamp

@@ -79,7 +79,18 @@ async fn exact_doas_give_the_source_within_a_millimetre() {
         }
         assert_eq!(l["cov"].as_array().unwrap().len(), 9);
         assert!((l["x"].as_f64().unwrap() - SOURCE.x).abs() < 1e-3);
+        // Once the track is older than the smoothing lag (1 s), the line
+        // carries the smoothed state, about a second earlier.
+        if let Some(s) = l.get("smoothed") {
+            let behind_s = (l["stamp_ns"].as_i64().unwrap() - s["stamp_ns"].as_i64().unwrap()) as f64 * 1e-9;
+            assert!((1.0..1.2).contains(&behind_s), "{l}");
+            assert_eq!(s["cov"].as_array().unwrap().len(), 9);
+            assert!(s["trusted"].is_boolean());
+            assert!((s["x"].as_f64().unwrap() - SOURCE.x).abs() < 1e-3, "{l}");
+        }
     }
+    let smoothed = lines.iter().filter(|l| l.get("smoothed").is_some()).count();
+    assert!((5..=10).contains(&smoothed), "{smoothed} lines with a smoothed state");
     std::fs::remove_dir_all(&dir).unwrap();
 }
 

@@ -53,6 +53,10 @@ struct Run {
     trusted_nees: Vec<f64>,
     /// Estimates whose best position was the filter's.
     filtered_best: usize,
+    /// Squared errors of the smoothed states, each distinct one once, and
+    /// the NEES of the trusted ones against their published covariance.
+    smoothed_sq: Vec<f64>,
+    smoothed_trusted_nees: Vec<f64>,
     estimates: usize,
     source_ids: Vec<u64>,
 }
@@ -72,6 +76,7 @@ async fn run(config: CoordinatorConfig, seed: u64) -> Run {
     let sigma = SIGMA_DEG.to_radians();
     let mut rng = ChaCha8Rng::seed_from_u64(seed);
     let mut out = Run::default();
+    let mut last_smoothed = None;
     for k in 0..STEPS {
         let t = T0.plus_secs(0.1 * k as f64);
         clock.set(t);
@@ -108,6 +113,22 @@ async fn run(config: CoordinatorConfig, seed: u64) -> Run {
         if CHECKPOINTS.contains(&k) {
             out.checkpoint_nees.push(nees(fp, f.position_covariance.as_ref().unwrap()));
         }
+        if let Some(s) = &e.smoothed {
+            // About a second behind the estimate, and trusted only with the track.
+            assert!((1.0..1.2).contains(&s.lag_s), "{s:?}");
+            assert!(s.stamp_ns < e.stamp_ns - 900_000_000, "{s:?} at {}", e.stamp_ns);
+            assert!(!s.trusted || f.trusted, "{s:?} {f:?}");
+            let p = s.position_in_map_m.as_ref().unwrap();
+            if last_smoothed != Some(s.stamp_ns) && k >= WARM_UP_STEPS {
+                out.smoothed_sq.push((point(p) - SOURCE).norm_squared());
+                if s.trusted {
+                    out.smoothed_trusted_nees.push(nees(p, s.position_covariance.as_ref().unwrap()));
+                }
+            }
+            last_smoothed = Some(s.stamp_ns);
+        } else {
+            assert!(k < WARM_UP_STEPS, "step {k}: no smoothed state");
+        }
     }
     drop((a, b));
     coordinator.shutdown().await.unwrap();
@@ -138,6 +159,8 @@ struct Summary {
     /// Fraction of trusted estimates with NEES above χ²₃(0.99).
     trusted_outliers: f64,
     filtered_best: f64,
+    smoothed_rms: f64,
+    smoothed_trusted_outliers: f64,
 }
 
 async fn runs(config: &CoordinatorConfig, n: u64) -> Summary {
@@ -165,6 +188,11 @@ async fn runs(config: &CoordinatorConfig, n: u64) -> Summary {
         trusted_mean_nees: mean(trusted),
         filtered_best: all.iter().map(|r| r.filtered_best).sum::<usize>() as f64
             / all.iter().map(|r| r.estimates).sum::<usize>() as f64,
+        smoothed_rms: mean(all.iter().flat_map(|r| r.smoothed_sq.clone()).collect()).sqrt(),
+        smoothed_trusted_outliers: {
+            let n: Vec<f64> = all.iter().flat_map(|r| r.smoothed_trusted_nees.clone()).collect();
+            n.iter().filter(|v| **v > gate).count() as f64 / n.len() as f64
+        },
     }
 }
 
@@ -181,7 +209,8 @@ async fn filtered_estimates_beat_triangulation_and_are_consistent() {
     println!(
         "static source, 2 robots at 90°, σ {SIGMA_DEG}°, 10 Hz, {n} runs of 10 s (after 2 s): triangulation RSE \
          {:.3} m, filtered RSE {:.4} m ({:.2}×); filtered NEES per checkpoint {:.2?} (99 % [{lo:.2}, {hi:.2}]); \
-         trusted estimates: mean NEES {:.2}, {:.1} % above χ²₃(0.99); best = filter in {:.0} % of estimates",
+         trusted estimates: mean NEES {:.2}, {:.1} % above χ²₃(0.99); best = filter in {:.0} % of estimates; \
+         smoothed states RSE {:.4} m, {:.1} % of the trusted above χ²₃(0.99)",
         s.tri_rms,
         s.filt_rms,
         s.filt_rms / s.tri_rms,
@@ -189,6 +218,14 @@ async fn filtered_estimates_beat_triangulation_and_are_consistent() {
         s.trusted_mean_nees,
         100.0 * s.trusted_outliers,
         100.0 * s.filtered_best,
+        s.smoothed_rms,
+        100.0 * s.smoothed_trusted_outliers,
+    );
+    assert!(s.smoothed_rms < s.filt_rms, "smoothed {} vs filtered {}", s.smoothed_rms, s.filt_rms);
+    assert!(
+        s.smoothed_trusted_outliers < 0.03,
+        "{:.3} of trusted smoothed states",
+        s.smoothed_trusted_outliers
     );
     assert!(s.filt_rms < 0.3 * s.tri_rms, "filtered {} vs triangulation {}", s.filt_rms, s.tri_rms);
     for (k, m) in CHECKPOINTS.iter().zip(&s.checkpoint_mean_nees) {

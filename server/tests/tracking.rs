@@ -278,6 +278,8 @@ struct Doa {
     t: f64,
     robot: u32,
     ray: Ray,
+    /// The true source at `t`.
+    source: Point3<f64>,
 }
 
 /// What a moving run is evaluated with: the truth at the evaluation times.
@@ -309,7 +311,7 @@ fn moving_run(robots: usize, end_s: f64, eval_dt_s: f64, seed: u64) -> MovingRun
         match robot {
             Some(i) => {
                 let ray = doa(robot_position(i as usize, t, &s), &s, SIGMA_3DEG, &mut rng);
-                run.doas.push(Doa { t, robot: i, ray });
+                run.doas.push(Doa { t, robot: i, ray, source: s });
             }
             None => run.truth.push((t, s, truth.v)),
         }
@@ -433,6 +435,73 @@ fn moving_source_is_tracked_consistently() {
         assert!(nis > nis_lo && nis < nis_hi, "{robots} robots: NIS {nis}");
         assert_eq!(ens.confirmed_at_end, runs as usize);
     }
+}
+
+// ---------------------------------------------------------------------------------------------
+// The fixed-lag smoother
+
+/// The smoothed states of the moving runs (model-matched, the single CV
+/// filter: the Rauch–Tung–Striebel smoother up to the history's 50 ms
+/// spacing) against the truth at their stamps, beside the live filter's
+/// estimate at the same stamps: it is better and as honest.
+#[test]
+fn the_smoothed_state_is_better_than_the_live_one_and_consistent() {
+    let config = TrackerConfig { smoothing_lag_s: 1.0, ..moving_config() };
+    let (mut sq_live, mut sq_smoothed, mut nees_sum, mut n) = (0.0, 0.0, 0.0, 0usize);
+    for seed in 0..40 {
+        let run = moving_run(2, 10.0, 1.0, 7000 + seed);
+        let (mut tracker, next) = start_moving(&config, &run, 2);
+        let start = run.doas[next - 1].t;
+        // The live estimate and the truth at every applied DoA's stamp.
+        let mut live: std::collections::HashMap<i64, (TrackEstimate, Point3<f64>)> = Default::default();
+        let mut last_smoothed = None;
+        for d in &run.doas[next..] {
+            let applied = matches!(feed(&mut tracker, d), UpdateOutcome::Applied { .. });
+            if applied {
+                live.insert(at(d.t).as_ns(), (tracker.estimate().unwrap(), d.source));
+            }
+            let Some(s) = tracker.smoothed() else {
+                assert!(
+                    d.t - start < 1.0 + 0.1,
+                    "seed {seed}: no smoothed state {} s after the start",
+                    d.t - start
+                );
+                continue;
+            };
+            assert!((1.0..1.2).contains(&s.lag_s), "seed {seed}: lag {}", s.lag_s);
+            assert!(s.stamp <= at(d.t).plus_secs(-1.0));
+            if last_smoothed == Some(s.stamp) || s.stamp.seconds_since(at(start)) < 3.0 {
+                continue;
+            }
+            last_smoothed = Some(s.stamp);
+            let (e, truth) = live[&s.stamp.as_ns()];
+            sq_live += (e.position_in_map - truth).norm_squared();
+            let err = s.position_in_map - truth;
+            sq_smoothed += err.norm_squared();
+            nees_sum += err.dot(&s.position_covariance().cholesky().unwrap().solve(&err));
+            n += 1;
+        }
+    }
+    let (live, smoothed, nees) =
+        ((sq_live / n as f64).sqrt(), (sq_smoothed / n as f64).sqrt(), nees_sum / n as f64);
+    println!(
+        "{n} smoothed states: RMS {smoothed:.4} m against the live {live:.4} m at the same stamps; NEES {nees:.2}"
+    );
+    assert!(n > 40 * 40, "{n}");
+    assert!(smoothed < 0.7 * live, "smoothed RMS {smoothed} vs live {live}");
+    assert!((2.4..3.6).contains(&nees), "smoothed NEES {nees} (3 when consistent)");
+}
+
+#[test]
+fn no_smoothed_state_when_switched_off() {
+    let config = TrackerConfig { smoothing_lag_s: 0.0, ..moving_config() };
+    let run = moving_run(2, 4.0, 1.0, 3);
+    let (mut tracker, next) = start_moving(&config, &run, 2);
+    for d in &run.doas[next..] {
+        feed(&mut tracker, d);
+    }
+    assert!(tracker.estimate().is_some_and(|e| e.counts.applied > 20));
+    assert_eq!(tracker.smoothed(), None);
 }
 
 // ---------------------------------------------------------------------------------------------

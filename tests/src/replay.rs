@@ -43,7 +43,7 @@ use crate::report::multi::nearest_truth_among;
 use crate::report::{RobotPath, RunRecord, SourceTruth, TimelineRow};
 use crate::runner::fleet::Fleet;
 use crate::runner::robot::{pose_covariance, slam_pose_std};
-use crate::runner::rows::{point, row_of};
+use crate::runner::rows::{point, row_of, smoothed_row};
 use crate::runner::{BLOCK_LEN, SIM_EPOCH, exchange};
 use crate::scenario::Scenario;
 
@@ -440,7 +440,7 @@ fn score(e: &wire::SourceEstimate, robots: &[Replayed], truths: &[SourceTruth]) 
         .collect();
     let truth_at = nearest_truth_among(truths, &covering, t_s, point(&e.position_in_map_m))
         .and_then(|k| Some((k, truths[k].position_at(t_s)?)));
-    let arrays: Vec<Point3<f64>> =
+    let arrays_at = |at: Stamp| -> Vec<Point3<f64>> {
         robots
             .iter()
             .map(|r| {
@@ -448,8 +448,17 @@ fn score(e: &wire::SourceEstimate, robots: &[Replayed], truths: &[SourceTruth]) 
                     p.map_from_base * r.array.base_from_array * Point3::origin()
                 })
             })
-            .collect();
-    row_of(e, SIM_EPOCH, truth_at, if truth_at.is_some() { &arrays } else { &[] })
+            .collect()
+    };
+    let arrays = arrays_at(at);
+    let mut row = row_of(e, SIM_EPOCH, truth_at, if truth_at.is_some() { &arrays } else { &[] });
+    if let Some(s) = &e.smoothed {
+        let at = Stamp::from_ns(s.stamp_ns);
+        let truth = truth_at.and_then(|(k, _)| truths[k].position_at(at.seconds_since(SIM_EPOCH)));
+        let arrays = if truth.is_some() { arrays_at(at) } else { Vec::new() };
+        row.smoothed = smoothed_row(s, SIM_EPOCH, truth, &arrays);
+    }
+    row
 }
 
 /// A true source's trajectory and intervals, read from its TUM file.

@@ -41,6 +41,7 @@ fn row(t_s: f64, theta_deg: f64, rse_m: f64) -> TimelineRow {
         covariance: None,
         source_id: 1,
         truth_source: Some(0),
+        smoothed: None,
     }
 }
 
@@ -488,6 +489,7 @@ fn realistic_run(active: bool) -> RunRecord {
                 covariance: None,
                 source_id: 1,
                 truth_source: Some(0),
+                smoothed: None,
             });
         }
         t += 0.1;

@@ -78,6 +78,12 @@ fn best_causal_cv(rows: &[soundmap_sim::odas_like::trial::ClosestPointRow]) -> (
 struct Figures {
     soundmap_p95_band: f64,
     soundmap_median: f64,
+    /// The same for the smoothed states published beside the estimates
+    /// (`summary.json`'s `smoothed`), scored at their own stamps.
+    smoothed_p95_band: f64,
+    smoothed_lag_s: f64,
+    smoothed_inside_99: f64,
+    smoothed_trusted_bad_low_theta: usize,
     closest_p95_band: f64,
     closest_median: f64,
     /// The best causal CV filter on the closest points, q̃ chosen in hindsight.
@@ -91,6 +97,8 @@ struct Figures {
 
 fn figures(record: &RunRecord, trial: &OdasTrial, replay_s: f64) -> Figures {
     let in_band = |t: f64| (BAND.0..=BAND.1).contains(&t);
+    let derived = soundmap_sim::report::derived::Derived::new(record);
+    let smoothed = soundmap_sim::report::Summary::new(record, &derived).smoothed;
     let scored: Vec<_> =
         record.rows.iter().filter_map(|r| Some((r, r.rse_m()?, r.true_theta_deg?))).collect();
     let trusted: Vec<_> = scored.iter().filter(|(r, ..)| r.trusted).collect();
@@ -99,6 +107,13 @@ fn figures(record: &RunRecord, trial: &OdasTrial, replay_s: f64) -> Figures {
         soundmap_p95_band: p95(scored.iter().filter(|s| in_band(s.2)).map(|s| s.1).collect())
             .unwrap_or(f64::NAN),
         soundmap_median: median(scored.iter().map(|s| s.1).collect()).unwrap_or(f64::NAN),
+        smoothed_p95_band: smoothed.as_ref().and_then(|s| s.rse_p95_in_band_m).unwrap_or(f64::NAN),
+        smoothed_lag_s: smoothed.as_ref().and_then(|s| s.lag_mean_s).unwrap_or(f64::NAN),
+        smoothed_inside_99: smoothed
+            .as_ref()
+            .and_then(|s| s.nees_above_chi2_99_trusted_ratio)
+            .map_or(f64::NAN, |r| 1.0 - r),
+        smoothed_trusted_bad_low_theta: smoothed.as_ref().map_or(0, |s| s.trusted_low_theta_over_0_5_m),
         closest_p95_band: p95(trial
             .closest_point
             .iter()
@@ -158,13 +173,20 @@ fn run_with(seed: u64, coordinator_toml: Option<&str>, walk_m_per_s: f64) -> Fig
         let _ = std::fs::remove_dir_all(&dir);
     }
     println!(
-        "seed {seed}: in-band p95 soundmap {:.3} m vs closest point {:.3} m ({:+.0} %), best causal CV filter on \
+        "seed {seed}: in-band p95 soundmap {:.3} m vs closest point {:.3} m ({:+.0} %), smoothed {:.3} m ({:+.0} %, \
+         {:.2} s behind, {:.1} % of trusted inside their 99 % ellipsoid, {} trusted at θ<20° with error>0.5 m), \
+         best causal CV filter on \
          the closest points {:.3} m (q̃ {} in hindsight); median {:.3} vs {:.3} m; \
          {} estimates, {} trusted, {} trusted at θ<20° with error>0.5 m, {:.1} % of trusted inside their 99 % ellipsoid; \
          replay {:.2} s",
         f.soundmap_p95_band,
         f.closest_p95_band,
         100.0 * (f.soundmap_p95_band / f.closest_p95_band - 1.0),
+        f.smoothed_p95_band,
+        100.0 * (f.smoothed_p95_band / f.closest_p95_band - 1.0),
+        f.smoothed_lag_s,
+        100.0 * f.smoothed_inside_99,
+        f.smoothed_trusted_bad_low_theta,
         f.best_cv_p95_band.0,
         f.best_cv_p95_band.1,
         f.soundmap_median,
@@ -191,6 +213,24 @@ fn odas_recording_replays_and_is_honest() {
     assert!(f.soundmap_p95_band <= 0.3, "{f:?}");
     assert!(f.soundmap_p95_band <= 0.75 * f.closest_p95_band, "{f:?}");
     assert!(f.trusted_inside_99 >= 0.97, "{f:?}");
+    // The smoothed states (a second behind): as honest, and no worse.
+    assert!(f.smoothed_p95_band <= f.soundmap_p95_band, "{f:?}");
+    assert!(f.smoothed_inside_99 >= 0.97, "{f:?}");
+    assert_eq!(f.smoothed_trusted_bad_low_theta, 0, "{f:?}");
+}
+
+/// The talker walking back and forth (0.7 m/s, ±1.5 m, 2 s pauses), seed 1:
+/// the live estimate misses the issue's in-band targets here (0.413 m against
+/// closest point's 0.520 m); the smoothed states, a second behind, meet them
+/// (0.243 m, measured 2026-11-27).
+#[test]
+fn odas_walking_talker_is_met_by_the_smoothed_states() {
+    let f = run_with(1, None, 0.7);
+    assert!(f.smoothed_p95_band <= 0.3, "{f:?}");
+    assert!(f.smoothed_p95_band <= 0.75 * f.closest_p95_band, "{f:?}");
+    assert!(f.smoothed_inside_99 >= 0.97, "{f:?}");
+    assert_eq!(f.smoothed_trusted_bad_low_theta, 0, "{f:?}");
+    assert_eq!(f.trusted_bad_low_theta, 0, "{f:?}");
 }
 
 #[test]
@@ -225,7 +265,8 @@ fn sweep(coordinator_toml: Option<&str>, walk_m_per_s: f64) {
     let all: Vec<Figures> = (1..=5).map(|seed| run_with(seed, coordinator_toml, walk_m_per_s)).collect();
     let mean = |g: fn(&Figures) -> f64| all.iter().map(g).sum::<f64>() / all.len() as f64;
     println!(
-        "{}{}seeds 1-5: in-band p95 soundmap {:.3} m vs closest point {:.3} m (best causal CV filter on the \
+        "{}{}seeds 1-5: in-band p95 soundmap {:.3} m vs closest point {:.3} m, smoothed {:.3} m \
+         ({:.1} % of trusted inside 99 %, {} trusted bad at θ<20°) (best causal CV filter on the \
          closest points {:.3} m); trusted inside 99 %: {:.1} %; \
          trusted bad at θ<20°: {}; replay {:.2} s (max {:.2})",
         match coordinator_toml {
@@ -236,6 +277,9 @@ fn sweep(coordinator_toml: Option<&str>, walk_m_per_s: f64) {
         if walk_m_per_s > 0.0 { format!("talker walking at {walk_m_per_s} m/s: ") } else { String::new() },
         mean(|f| f.soundmap_p95_band),
         mean(|f| f.closest_p95_band),
+        mean(|f| f.smoothed_p95_band),
+        100.0 * mean(|f| f.smoothed_inside_99),
+        all.iter().map(|f| f.smoothed_trusted_bad_low_theta).sum::<usize>(),
         mean(|f| f.best_cv_p95_band.0),
         100.0 * mean(|f| f.trusted_inside_99),
         all.iter().map(|f| f.trusted_bad_low_theta).sum::<usize>(),

@@ -8,7 +8,7 @@ use soundmap_proto::{RobotId, Stamp};
 
 use crate::planner::SourceEstimate;
 use crate::stats::chi2_quantile;
-use crate::tracking::{TrackEstimate, TrackState};
+use crate::tracking::{SmoothedEstimate, TrackEstimate, TrackState};
 use crate::triangulation::{Degeneracy, Gate, GateReason, Method, Triangulation, TriangulationConfig};
 
 /// One published estimate of a source.
@@ -26,6 +26,10 @@ pub struct Estimate {
     /// The track's state predicted to `stamp`, when a track exists (its
     /// `state` says whether it is tentative, confirmed or lost).
     pub filtered: Option<TrackEstimate>,
+    /// The track's fixed-lag smoothed state (about
+    /// `tracking.smoothing_lag_s` behind `stamp`), when smoothing is on and
+    /// the track is older than the lag.
+    pub smoothed: Option<SmoothedEstimate>,
     /// Share of the triangulation's covariance added to the filter's in the
     /// published covariance (`tracking.correlated_doa_fraction`).
     pub correlated_doa_fraction: f64,
@@ -72,6 +76,27 @@ impl Estimate {
             }
             _ => self.triangulation.solution().and_then(|s| s.quality.covariance),
         }
+    }
+
+    /// Covariance of the smoothed state as published (m²): the smoother's own
+    /// plus `correlated_doa_fraction` × the current triangulation's, as for the
+    /// filter ([`Estimate::covariance`]): the smoother averages the DoAs as if
+    /// their errors were independent, and they are not. `None` without a
+    /// smoothed state.
+    pub fn smoothed_covariance(&self) -> Option<Matrix3<f64>> {
+        let s = self.smoothed.as_ref()?;
+        let floor = self.triangulation.solution().and_then(|t| t.quality.covariance);
+        Some(
+            s.position_covariance() + floor.map_or_else(Matrix3::zeros, |c| c * self.correlated_doa_fraction),
+        )
+    }
+
+    /// Whether the smoothed state can be trusted to its published covariance:
+    /// its track is trusted now (confirmed, consistent, at a good geometry or
+    /// with evidence from one, [`TrackEstimate::trusted`]) and the estimate is
+    /// trusted ([`Estimate::trusted`]).
+    pub fn smoothed_trusted(&self) -> bool {
+        self.smoothed.is_some() && self.filtered.as_ref().is_some_and(|f| f.trusted) && self.trusted()
     }
 
     /// Estimator of [`Estimate::position`]: `None` for the filter, else the triangulation's.

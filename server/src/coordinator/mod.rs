@@ -463,6 +463,7 @@ impl Coordinator {
             return None;
         };
         estimate.filtered = self.tracking.estimate_at(estimate.stamp);
+        estimate.smoothed = self.tracking.smoothed();
         estimate.source_id = self.tracking.live_track_id().unwrap_or(0);
         self.counters.estimates += 1;
         self.last_estimate = Some(estimate.clone());
@@ -498,6 +499,7 @@ impl Coordinator {
                 robots: s.robots.iter().filter_map(|i| ids.get(i).cloned()).collect(),
                 triangulation: s.triangulation,
                 filtered: s.filtered,
+                smoothed: s.smoothed,
                 correlated_doa_fraction,
             })
             .collect();
@@ -630,6 +632,7 @@ impl Coordinator {
             robots,
             triangulation,
             filtered: None,
+            smoothed: None,
             correlated_doa_fraction,
         };
         Some((estimate, newest))

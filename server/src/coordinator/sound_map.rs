@@ -39,7 +39,9 @@ use crate::association::{assign, best_disjoint, signature_similarity};
 use crate::config::SourcesConfig;
 use crate::ray::Ray;
 use crate::stats::chi2_quantile;
-use crate::tracking::{InitOutcome, SourceTracker, TrackEstimate, TrackerConfig, UpdateOutcome};
+use crate::tracking::{
+    InitOutcome, SmoothedEstimate, SourceTracker, TrackEstimate, TrackerConfig, UpdateOutcome,
+};
 use crate::triangulation::{Gate, GateReason, Triangulation, TriangulationConfig, triangulate};
 
 pub use super::records::SourceRecord;
@@ -145,6 +147,8 @@ pub struct SourceSighting {
     pub triangulation: Triangulation,
     /// The source's filtered state at the stamp.
     pub filtered: Option<TrackEstimate>,
+    /// The source's fixed-lag smoothed state (behind the stamp).
+    pub smoothed: Option<SmoothedEstimate>,
     /// Newest stamp of the rays.
     pub newest: Stamp,
 }
@@ -512,6 +516,7 @@ impl SoundMap {
                 robots,
                 triangulation: triangulate(&rays, config),
                 filtered: s.tracker.predict_to(stamp),
+                smoothed: s.tracker.smoothed(),
                 newest,
             });
         }

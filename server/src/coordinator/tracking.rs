@@ -20,7 +20,9 @@
 use soundmap_proto::Stamp;
 
 use crate::ray::Ray;
-use crate::tracking::{InitOutcome, SourceTracker, TrackEstimate, TrackerConfig, UpdateOutcome};
+use crate::tracking::{
+    InitOutcome, SmoothedEstimate, SourceTracker, TrackEstimate, TrackerConfig, UpdateOutcome,
+};
 use crate::triangulation::Triangulation;
 
 /// What became of the DoAs given to the tracker since the coordinator started.
@@ -146,6 +148,11 @@ impl Tracking {
     /// The track predicted to `stamp` (or its newest state, if `stamp` is older), if any.
     pub fn estimate_at(&self, stamp: Stamp) -> Option<TrackEstimate> {
         self.tracker.as_ref()?.predict_to(stamp)
+    }
+
+    /// The track's fixed-lag smoothed state, if any.
+    pub fn smoothed(&self) -> Option<SmoothedEstimate> {
+        self.tracker.as_ref()?.smoothed()
     }
 
     /// The track's newest estimate, lost or not.

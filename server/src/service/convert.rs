@@ -10,7 +10,7 @@ use soundmap_proto::monitoring::finite_or;
 use soundmap_proto::{vec3_to_wire, wire};
 
 use crate::coordinator::{BestSource, Estimate};
-use crate::tracking::{TrackEstimate, TrackState};
+use crate::tracking::{SmoothedEstimate, TrackEstimate, TrackState};
 use crate::triangulation::{Gate, Method, Triangulation};
 
 fn method(m: Method) -> wire::EstimateMethod {
@@ -87,6 +87,19 @@ pub fn filtered_to_wire(f: &TrackEstimate) -> wire::FilteredState {
     }
 }
 
+/// The wire form of an estimate's smoothed state, with its published
+/// covariance and trust ([`Estimate::smoothed_covariance`], [`Estimate::smoothed_trusted`]).
+pub fn smoothed_to_wire(e: &Estimate, s: &SmoothedEstimate) -> wire::SmoothedState {
+    wire::SmoothedState {
+        stamp_ns: s.stamp.as_ns(),
+        lag_s: finite_or(s.lag_s, 0.0),
+        position_in_map_m: Some(point(&s.position_in_map)),
+        velocity_in_map_m_s: Some(vec3_to_wire(&s.velocity_in_map)),
+        position_covariance: e.smoothed_covariance().as_ref().map(covariance3_to_wire),
+        trusted: e.smoothed_trusted(),
+    }
+}
+
 /// The wire form of an estimate: the best position (filtered when the track
 /// is trusted, else the triangulation's), the triangulation, the filtered state.
 pub fn estimate_to_wire(e: &Estimate) -> wire::SourceEstimate {
@@ -109,12 +122,15 @@ pub fn estimate_to_wire(e: &Estimate) -> wire::SourceEstimate {
         triangulation: Some(tri),
         filtered: e.filtered.as_ref().map(filtered_to_wire),
         lagged: 0,
+        smoothed: e.smoothed.as_ref().map(|s| smoothed_to_wire(e, s)),
     }
 }
 
 /// One line of the estimates JSON-lines file (no trailing newline):
 /// `{"stamp_ns", "source_id", "x", "y", "z", "cov" (9 values, m², row-major),
-/// "gdop", "theta_deg", "robots", "trusted", "method"}`. `None` without a position.
+/// "gdop", "theta_deg", "robots", "trusted", "method"}`, and `"smoothed":
+/// {"stamp_ns", "x", "y", "z", "cov", "trusted"}` when the estimate carries a smoothed
+/// state. `None` without a position.
 pub fn estimate_to_json_line(e: &wire::SourceEstimate) -> Option<String> {
     let p = e.position_in_map_m.as_ref()?;
     let cov: Vec<f64> = e.covariance.as_ref().map(|c| c.values_m2.clone()).unwrap_or_default();
@@ -125,7 +141,7 @@ pub fn estimate_to_json_line(e: &wire::SourceEstimate) -> Option<String> {
         wire::EstimateMethod::KalmanFilter => "kalman_filter",
         wire::EstimateMethod::Unspecified => "unspecified",
     });
-    let v = serde_json::json!({
+    let mut v = serde_json::json!({
         "stamp_ns": e.stamp_ns,
         "source_id": e.source_id,
         "x": p.x, "y": p.y, "z": p.z,
@@ -136,5 +152,13 @@ pub fn estimate_to_json_line(e: &wire::SourceEstimate) -> Option<String> {
         "trusted": e.trusted,
         "method": method,
     });
+    if let Some(s) = &e.smoothed
+        && let Some(p) = &s.position_in_map_m
+    {
+        let cov: Vec<f64> = s.position_covariance.as_ref().map(|c| c.values_m2.clone()).unwrap_or_default();
+        v["smoothed"] = serde_json::json!({
+            "stamp_ns": s.stamp_ns, "x": p.x, "y": p.y, "z": p.z, "cov": cov, "trusted": s.trusted,
+        });
+    }
     Some(v.to_string())
 }

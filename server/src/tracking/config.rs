@@ -10,6 +10,9 @@ use super::noise::{LearningRules, MAX_WINDOW};
 use crate::ray::MIN_RANGE_M;
 use crate::stats::chi2_quantile;
 
+/// Longest `smoothing_lag_s` (s): bounds the smoother's history.
+pub const MAX_SMOOTHING_LAG_S: f64 = 10.0;
+
 /// Settings of [`SourceTracker`](super::SourceTracker). Times are seconds,
 /// distances metres, probabilities in (0, 1).
 #[derive(Clone, Debug, PartialEq, Deserialize)]
@@ -131,6 +134,11 @@ pub struct TrackerConfig {
     /// DoAs applied at good geometry after which a track may stay trusted when
     /// the geometry degrades (its covariance then says how well it is pinned). Default 20.
     pub evidence_updates: u32,
+    /// How far behind the live estimate the fixed-lag smoothed estimate is
+    /// (s): the track's state at (newest DoA − lag), from the DoAs before and
+    /// after it (`tracking::smoother`). Default 1.0; 0 switches it off;
+    /// at most [`MAX_SMOOTHING_LAG_S`].
+    pub smoothing_lag_s: f64,
 }
 
 impl Default for TrackerConfig {
@@ -172,6 +180,7 @@ impl Default for TrackerConfig {
             consistency_probability: 0.99,
             good_geometry_theta_deg: 30.0,
             evidence_updates: 20,
+            smoothing_lag_s: 1.0,
         }
     }
 }
@@ -223,6 +232,10 @@ impl TrackerConfig {
         }
         if !(1..=MAX_WINDOW).contains(&self.consistency_window) {
             return fail("consistency_window", "must be in 1..=32");
+        }
+        if !(self.smoothing_lag_s.is_finite() && (0.0..=MAX_SMOOTHING_LAG_S).contains(&self.smoothing_lag_s))
+        {
+            return fail("smoothing_lag_s", "must be in [0, 10]");
         }
         if self.good_geometry_theta_deg > 90.0 {
             return fail("good_geometry_theta_deg", "must be in [0, 90]");
@@ -309,6 +322,10 @@ impl TrackerConfig {
     pub(super) fn lag_ns(&self) -> i64 {
         secs_to_ns(self.lag_s)
     }
+
+    pub(super) fn smoothing_lag_ns(&self) -> i64 {
+        secs_to_ns(self.smoothing_lag_s)
+    }
 }
 
 /// Seconds to nanoseconds, saturating, NaN as 0.
@@ -335,6 +352,10 @@ mod tests {
     fn bad_values_name_their_field() {
         let bad = TrackerConfig { lag_s: f64::NAN, ..TrackerConfig::default() };
         assert_eq!(bad.validate().unwrap_err().field, "lag_s");
+        for lag in [f64::NAN, -0.5, 10.5] {
+            let bad = TrackerConfig { smoothing_lag_s: lag, ..TrackerConfig::default() };
+            assert_eq!(bad.validate().unwrap_err().field, "smoothing_lag_s");
+        }
         let bad = TrackerConfig { confirm_updates: 17, ..TrackerConfig::default() };
         assert_eq!(bad.validate().unwrap_err().field, "confirm_updates");
         let bad = TrackerConfig { association_probability: 0.9995, ..TrackerConfig::default() };

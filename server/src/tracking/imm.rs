@@ -59,7 +59,8 @@
 use nalgebra::{Matrix3, Matrix6, Vector3, Vector6};
 
 use super::filter::{
-    CvState, DoaInnovation, DoaNoiseModel, ProcessNoise, Unusable, doa_innovation, joseph_update, symmetric,
+    CvState, DoaInnovation, DoaNoiseModel, ProcessNoise, Unusable, doa_innovation, joseph_update,
+    process_noise, symmetric, transition,
 };
 use crate::ray::Ray;
 
@@ -89,12 +90,12 @@ pub struct Modes {
 
 impl Modes {
     /// Probability of switching mode over `dt_s`.
-    fn switch_probability(&self, dt_s: f64) -> f64 {
+    pub(super) fn switch_probability(&self, dt_s: f64) -> f64 {
         0.5 * (1.0 - (-dt_s / self.sojourn_s.max(1e-9)).exp())
     }
 
     /// Mode `mode`'s prediction of `state` over `dt_s`.
-    fn predict(&self, mode: usize, state: &CvState, dt_s: f64) -> CvState {
+    pub(super) fn predict(&self, mode: usize, state: &CvState, dt_s: f64) -> CvState {
         match (mode, self.still) {
             (STILL, Some(d)) => {
                 let mut mean = state.mean;
@@ -113,10 +114,33 @@ impl Modes {
             _ => state.predicted(dt_s, &self.moving),
         }
     }
+
+    /// Mode `mode`'s prediction over `dt_s` as a linear model x' = F x + w,
+    /// w ~ N(0, Q): what [`Modes::predict`] does, for the smoother. The still
+    /// mode keeps the position and forgets the velocity: F = [I 0; 0 0],
+    /// Q = [D·Δt 0; 0 σ_v²·I].
+    pub(super) fn linear(&self, mode: usize, dt_s: f64) -> (Matrix6<f64>, Matrix6<f64>) {
+        match (mode, self.still) {
+            (STILL, Some(d)) => {
+                let f = Matrix6::from_diagonal(&Vector6::new(1.0, 1.0, 1.0, 0.0, 0.0, 0.0));
+                let v = STILL_VELOCITY_SIGMA * STILL_VELOCITY_SIGMA;
+                let q = Matrix6::from_diagonal(&Vector6::new(
+                    d.horizontal_m2_per_s * dt_s,
+                    d.horizontal_m2_per_s * dt_s,
+                    d.vertical_m2_per_s * dt_s,
+                    v,
+                    v,
+                    v,
+                ));
+                (f, q)
+            }
+            _ => (transition(dt_s), process_noise(dt_s, &self.moving)),
+        }
+    }
 }
 
-const STILL: usize = 0;
-const MOVING: usize = 1;
+pub(super) const STILL: usize = 0;
+pub(super) const MOVING: usize = 1;
 /// No mode's probability falls below this, so that either can take over again.
 const MIN_PROBABILITY: f64 = 1e-6;
 
@@ -136,6 +160,16 @@ impl ImmState {
     /// Probability of the moving mode.
     pub fn moving_probability(&self) -> f64 {
         self.probability[MOVING]
+    }
+
+    /// Each mode's state (still, moving).
+    pub(super) fn mode_states(&self) -> &[CvState; 2] {
+        &self.modes
+    }
+
+    /// The mode probabilities (still, moving).
+    pub(super) fn probabilities(&self) -> [f64; 2] {
+        self.probability
     }
 
     /// The moment-matched mixture of the modes.

@@ -97,6 +97,17 @@ impl<O: Ord, S> LagBuffer<O, S> {
         self.start
     }
 
+    /// The state before the oldest buffered observation (after the last
+    /// pruned one, or the start state) and its stamp.
+    pub fn base(&self) -> (&S, Stamp) {
+        (&self.base, self.base_stamp)
+    }
+
+    /// The buffered states in time order, each after its observation, with its stamp.
+    pub fn states(&self) -> impl Iterator<Item = (&S, Stamp)> {
+        self.entries.iter().map(|e| (&e.after, e.stamp))
+    }
+
     /// Observations held.
     pub fn len(&self) -> usize {
         self.entries.len()

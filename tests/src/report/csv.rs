@@ -21,6 +21,11 @@
 //! | `nees` | eᵀP⁻¹e of the published estimate against the truth, P its published covariance |
 //! | `source_id` | the estimate's `source_id` as published (0: no live track) |
 //! | `truth_source` | index of the true source the row is scored against: the nearest one active at the stamp |
+//! | `smooth_t_s` | time of the track's fixed-lag smoothed state published with the estimate (s; earlier than `t_s`) |
+//! | `smooth_x_m`, `smooth_y_m`, `smooth_z_m` | the smoothed position (m) |
+//! | `smooth_rse_m` | its error against the same true source at `smooth_t_s` (m) |
+//! | `smooth_nees` | its eᵀP⁻¹e with its own covariance |
+//! | `smooth_trusted` | whether it was published trusted (empty without a smoothed state) |
 //!
 //! The set of columns never depends on the data: a value that is absent (no
 //! estimate position, no truth in a replay without truth, no triangulation) is an
@@ -70,6 +75,13 @@ pub fn timeline_header(record: &RunRecord) -> Vec<String> {
             "nees",
             "source_id",
             "truth_source",
+            "smooth_t_s",
+            "smooth_x_m",
+            "smooth_y_m",
+            "smooth_z_m",
+            "smooth_rse_m",
+            "smooth_nees",
+            "smooth_trusted",
         ]
         .map(String::from),
     );
@@ -101,6 +113,12 @@ pub fn timeline_csv(record: &RunRecord) -> String {
         cells.push(opt(row.nees()));
         cells.push(row.source_id.to_string());
         cells.push(row.truth_source.map_or_else(String::new, |k| k.to_string()));
+        let s = row.smoothed.as_ref();
+        cells.push(opt(s.map(|s| s.t_s)));
+        point(&mut cells, s.map(|s| s.estimate_in_map));
+        cells.push(opt(s.and_then(|s| s.rse_m())));
+        cells.push(opt(s.and_then(|s| s.nees())));
+        cells.push(s.map_or_else(String::new, |s| s.trusted.to_string()));
         let _ = writeln!(out, "{}", cells.join(","));
     }
     out

@@ -33,8 +33,8 @@ use std::path::Path;
 pub use comparison::write_comparison;
 pub use derived::ThetaSource;
 pub use multi::MultiTargetSummary;
-pub use record::{RobotPath, RoomOutline, RunRecord, SourceTruth, TimelineRow};
-pub use summary::{Summary, TriangulationSummary};
+pub use record::{RobotPath, RoomOutline, RunRecord, SmoothedRow, SourceTruth, TimelineRow};
+pub use summary::{SmoothedSummary, Summary, TriangulationSummary};
 pub use table::{format_comparison_table, format_summary_table, print_comparison_table, print_summary_table};
 
 use crate::SimError;

@@ -42,6 +42,41 @@ pub struct TimelineRow {
     /// `distances_m`, `true_theta_deg`): the nearest one active at the stamp
     /// ([`super::multi::nearest_truth`]); `None` without truth.
     pub truth_source: Option<usize>,
+    /// The track's fixed-lag smoothed state published with the estimate, scored
+    /// against the truth at its own (earlier) stamp.
+    pub smoothed: Option<SmoothedRow>,
+}
+
+/// A smoothed state published beside an estimate (`SourceEstimate.smoothed`),
+/// with the truth at its stamp.
+#[derive(Clone, Debug, PartialEq)]
+pub struct SmoothedRow {
+    /// Time the state refers to, since the start of the run (s).
+    pub t_s: f64,
+    /// Smoothed position (map frame, m).
+    pub estimate_in_map: Point3<f64>,
+    /// Its position covariance (m²).
+    pub covariance: Option<Matrix3<f64>>,
+    /// True source position at `t_s` (the same true source as the row's), when known.
+    pub truth_in_map: Option<Point3<f64>>,
+    /// θ at that true source between the true arrays at `t_s` (degrees).
+    pub true_theta_deg: Option<f64>,
+    /// Whether it was published trusted.
+    pub trusted: bool,
+}
+
+impl SmoothedRow {
+    /// ‖estimate − truth‖ (m), when the truth is known.
+    pub fn rse_m(&self) -> Option<f64> {
+        Some((self.estimate_in_map - self.truth_in_map?).norm())
+    }
+
+    /// eᵀP⁻¹e against the truth (χ², 3 dof, when the covariance is honest).
+    pub fn nees(&self) -> Option<f64> {
+        let e = self.estimate_in_map - self.truth_in_map?;
+        let chol = self.covariance?.cholesky()?;
+        Some(e.dot(&chol.solve(&e)))
+    }
 }
 
 impl TimelineRow {

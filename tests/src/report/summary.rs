@@ -111,6 +111,9 @@ pub struct Summary {
     /// The same figures for the instantaneous triangulation beside a filtered
     /// estimate; `null` when no row has one.
     pub triangulation: Option<TriangulationSummary>,
+    /// The tracks' fixed-lag smoothed states published beside the estimates;
+    /// `null` when none was.
+    pub smoothed: Option<SmoothedSummary>,
     /// Every true source against every published source id over time (OSPA,
     /// detection, ghosts, id switches, per-source RSE; see [`super::multi`]);
     /// `null` without truth.
@@ -134,6 +137,82 @@ pub struct TriangulationSummary {
     pub rse_p95_in_band_m: Option<f64>,
     /// 95th percentile with θ out of the band (m).
     pub rse_p95_out_of_band_m: Option<f64>,
+}
+
+/// Figures of the smoothed states published beside the estimates. A smoothed
+/// state is refreshed every 50 ms of DoA time and repeated with the estimates
+/// in between: each distinct (source id, stamp) counts once. "In band" is the
+/// true θ at the smoothed state's own stamp.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct SmoothedSummary {
+    /// Distinct smoothed states.
+    pub states: usize,
+    /// Those with an RSE (the truth known at their stamp).
+    pub states_with_rse: usize,
+    /// Mean lag behind the estimate they were published with (s).
+    pub lag_mean_s: Option<f64>,
+    /// Median RSE (m).
+    pub rse_median_m: Option<f64>,
+    /// 95th percentile of the RSE (m).
+    pub rse_p95_m: Option<f64>,
+    /// Median RSE with the true θ in the band (m).
+    pub rse_median_in_band_m: Option<f64>,
+    /// 95th percentile of the RSE with the true θ in the band (m).
+    pub rse_p95_in_band_m: Option<f64>,
+    /// Share published trusted.
+    pub trusted_ratio: Option<f64>,
+    /// Mean NEES of the trusted ones against their published covariance (3 when honest).
+    pub nees_mean_trusted: Option<f64>,
+    /// Share of the trusted ones with NEES above χ²₃(0.99) = 11.34 (1 % when honest).
+    pub nees_above_chi2_99_trusted_ratio: Option<f64>,
+    /// Trusted ones at a true θ below 20° (or above 160°) with an RSE over 0.5 m.
+    pub trusted_low_theta_over_0_5_m: usize,
+}
+
+impl SmoothedSummary {
+    /// `None` when no row carries a smoothed state.
+    fn new(record: &RunRecord) -> Option<Self> {
+        let mut seen = std::collections::HashSet::new();
+        let states: Vec<(&super::record::TimelineRow, &super::record::SmoothedRow)> = record
+            .rows
+            .iter()
+            .filter_map(|r| Some((r, r.smoothed.as_ref()?)))
+            .filter(|(r, s)| seen.insert((r.source_id, s.t_s.to_bits())))
+            .collect();
+        if states.is_empty() {
+            return None;
+        }
+        let (lo, hi) = record.theta_band_deg;
+        let rse: Vec<f64> = states.iter().filter_map(|(_, s)| s.rse_m()).collect();
+        let in_band: Vec<f64> = states
+            .iter()
+            .filter(|(_, s)| s.true_theta_deg.is_some_and(|t| (lo..=hi).contains(&t)))
+            .filter_map(|(_, s)| s.rse_m())
+            .collect();
+        let trusted: Vec<&super::record::SmoothedRow> =
+            states.iter().map(|(_, s)| *s).filter(|s| s.trusted).collect();
+        let nees: Vec<f64> = trusted.iter().filter_map(|s| s.nees()).collect();
+        let low_theta_bad = trusted
+            .iter()
+            .filter(|s| s.true_theta_deg.is_some_and(|t| t.min(180.0 - t) < 20.0))
+            .filter(|s| s.rse_m().is_some_and(|e| e > 0.5))
+            .count();
+        let lags: Vec<f64> = states.iter().map(|(r, s)| r.t_s - s.t_s).collect();
+        Some(SmoothedSummary {
+            states: states.len(),
+            states_with_rse: rse.len(),
+            lag_mean_s: stats::mean(&lags),
+            rse_median_m: stats::median(&rse),
+            rse_p95_m: stats::p95(&rse),
+            rse_median_in_band_m: stats::median(&in_band),
+            rse_p95_in_band_m: stats::p95(&in_band),
+            trusted_ratio: Some(trusted.len() as f64 / states.len() as f64),
+            nees_mean_trusted: stats::mean(&nees),
+            nees_above_chi2_99_trusted_ratio: (!nees.is_empty())
+                .then(|| nees.iter().filter(|v| **v > CHI2_3DOF_99).count() as f64 / nees.len() as f64),
+            trusted_low_theta_over_0_5_m: low_theta_bad,
+        })
+    }
 }
 
 /// Values of `values` at the rows where `keep` holds.
@@ -204,6 +283,7 @@ impl Summary {
             rse_median_after_convergence_m: stats::median(&after_rse),
             rse_p95_after_convergence_m: stats::p95(&after_rse),
             triangulation: TriangulationSummary::new(record, d),
+            smoothed: SmoothedSummary::new(record),
             multi_target: MultiTargetSummary::new(record),
         }
     }

@@ -6,7 +6,7 @@ use soundmap_proto::{Stamp, wire};
 use super::SIM_EPOCH;
 use super::robot::SimRobot;
 use crate::report::multi::nearest_truth;
-use crate::report::{SourceTruth, TimelineRow};
+use crate::report::{SmoothedRow, SourceTruth, TimelineRow};
 use crate::scenario::Scenario;
 
 /// Builds [`TimelineRow`]s.
@@ -98,7 +98,27 @@ pub fn row_of(
         covariance: e.covariance.as_ref().and_then(soundmap_proto::monitoring::covariance_from_wire),
         source_id: e.source_id,
         truth_source,
+        smoothed: None,
     }
+}
+
+/// A published smoothed state as a [`SmoothedRow`], scored against `truth`
+/// (the true source's position at the state's own stamp) and the true array
+/// centres `arrays` then. `None` without a position.
+pub fn smoothed_row(
+    s: &wire::SmoothedState,
+    t0: Stamp,
+    truth: Option<Point3<f64>>,
+    arrays: &[Point3<f64>],
+) -> Option<SmoothedRow> {
+    Some(SmoothedRow {
+        t_s: Stamp::from_ns(s.stamp_ns).seconds_since(t0),
+        estimate_in_map: point(&s.position_in_map_m)?,
+        covariance: s.position_covariance.as_ref().and_then(soundmap_proto::monitoring::covariance_from_wire),
+        truth_in_map: truth,
+        true_theta_deg: truth.filter(|_| arrays.len() >= 2).map(|p| best_theta_deg(&p, arrays)),
+        trusted: s.trusted,
+    })
 }
 
 impl RowMaker {
@@ -112,7 +132,14 @@ impl RowMaker {
         let t_s = Stamp::from_ns(e.stamp_ns).seconds_since(SIM_EPOCH);
         let arrays: Vec<Point3<f64>> = robots.iter().map(|r| r.array_centre_at(t_s)).collect();
         let truth = truth_for(&self.truths, t_s, point(&e.position_in_map_m));
-        self.rows.push(row_of(e, SIM_EPOCH, truth, &arrays));
+        let mut row = row_of(e, SIM_EPOCH, truth, &arrays);
+        if let Some(s) = &e.smoothed {
+            let ts = Stamp::from_ns(s.stamp_ns).seconds_since(SIM_EPOCH);
+            let arrays: Vec<Point3<f64>> = robots.iter().map(|r| r.array_centre_at(ts)).collect();
+            let truth = truth.and_then(|(k, _)| self.truths[k].position_at(ts));
+            row.smoothed = smoothed_row(s, SIM_EPOCH, truth, &arrays);
+        }
+        self.rows.push(row);
     }
 
     /// The rows, in publication order.
