@@ -185,9 +185,15 @@ fn folded(rays: &[Ray], ceiling_m: Option<f64>) -> Vec<Ray> {
 
 fn bench_tracker(quick: bool) {
     let doas = tracker_doas(if quick { 20.0 } else { 120.0 });
-    let mut start = SourceTracker::new(TrackerConfig::default());
-    let init = start.initialize(doas[0].0, Point3::new(2.0, 0.0, 1.2), Matrix3::identity() * 0.04);
-    assert!(matches!(init, InitOutcome::Started { .. }));
+    let start_with = |config: TrackerConfig| {
+        let mut start = SourceTracker::new(config);
+        let init = start.initialize(doas[0].0, Point3::new(2.0, 0.0, 1.2), Matrix3::identity() * 0.04);
+        assert!(matches!(init, InitOutcome::Started { .. }));
+        start
+    };
+    let start = start_with(TrackerConfig::default());
+    // The fixed-lag smoother's share: the same without it.
+    let unsmoothed = start_with(TrackerConfig { smoothing_lag_s: 0.0, ..TrackerConfig::default() });
     // Arrival order: 1 DoA in 16 arrives 0.25 s late (inserted into the lag buffer, the later ones re-run).
     let late_ns = 250_000_000;
     let mut late: Vec<_> = doas
@@ -209,11 +215,12 @@ fn bench_tracker(quick: bool) {
         let rays = folded(&doas.iter().map(|d| d.2).collect::<Vec<_>>(), Some(3.0));
         doas.iter().zip(rays).map(|(d, r)| (d.0, d.1, r)).collect()
     };
-    for (name, order) in [
-        ("in stamp order", &doas),
-        ("1 in 16 arriving 0.25 s late", &late),
-        ("in stamp order, folded rays (floor-image model)", &folded_doas),
-        ("in stamp order, folded rays with a 3 m ceiling", &ceiling_doas),
+    for (name, order, start) in [
+        ("in stamp order", &doas, &start),
+        ("1 in 16 arriving 0.25 s late", &late, &start),
+        ("in stamp order, folded rays (floor-image model)", &folded_doas, &start),
+        ("in stamp order, folded rays with a 3 m ceiling", &ceiling_doas, &start),
+        ("in stamp order, smoothing off (`smoothing_lag_s = 0`)", &doas, &unsmoothed),
     ] {
         let mut applied = 0;
         let per = time_per_call(if quick { 5 } else { 20 }, 1, |_| {
@@ -231,6 +238,11 @@ fn bench_tracker(quick: bool) {
         "folded / straight rays: {:.2}×; with the ceiling: {:.2}×",
         per_update[2] / per_update[0],
         per_update[3] / per_update[0]
+    );
+    println!(
+        "the fixed-lag smoother (refreshed every 50 ms of DoA time): {:.2} µs per update, {:.2}× the update without it",
+        (per_update[0] - per_update[4]) / 1e3,
+        per_update[0] / per_update[4]
     );
     let extra = (per_update[1] - per_update[0]) * 16.0;
     println!(

@@ -19,7 +19,7 @@
 //!
 //! The filter is the IMM of [`super::imm`]: per mode j a state xⱼ, Pⱼ and a
 //! probability μⱼ; each mode is linear over a step Δt, x' = Fⱼ x + w,
-//! w ~ N(0, Qⱼ) ([`Modes::linear`]), and the mode is a Markov chain with
+//! w ~ N(0, Qⱼ) (`Modes::linear`), and the mode is a Markov chain with
 //! Πᵢⱼ(Δt) (stay 1 − s, switch s). Given the smoothed per-mode states
 //! xⱼˢ(k+1), Pⱼˢ(k+1) and probabilities μⱼˢ(k+1), and the filtered ones at k:
 //!
@@ -45,6 +45,29 @@
 //! with 50 ms against a walker's ≈ 0.7 s averaging this changes little, and it
 //! bounds the cost: a query is one backward pass over at most
 //! lag / 50 ms + 1 steps of four 6×6 gains.
+//!
+//! # Worked numbers
+//!
+//! - Model-matched (the single CV filter, q̃ 0.01 m²/s³, DoAs σ 3° from two
+//!   robots at 10 and 15 Hz; `server/tests/tracking.rs`, 40 runs): smoothed
+//!   RMS 0.072 m against the live filter's 0.133 m at the same stamps, NEES
+//!   2.67 (3 when consistent; the 50 ms history spacing makes it slightly
+//!   conservative).
+//! - DoA errors held for 0.4 s, a walker at 0.7 m/s with 2 s pauses, the IMM
+//!   (this module's tests, 1 s lag): RMS 0.126 m against live 0.220 m.
+//! - ODAS-like DoAs (level-4 grid, room bias, 0.3 s jitter), walking talker,
+//!   seeds 1–5: in-band RSE p95 0.265 m against the live 0.431 m and the
+//!   closest point's 0.534 m; lag 0.5 / 1 / 2 s gives 0.292 / 0.265 /
+//!   0.268 m: the gain stops at about the moving mode's averaging time, so
+//!   the default lag is 1 s (BENCHMARKS.md, *The smoothed states*).
+//! - Cost: ≈ 44 µs per refresh (≈ 30 kept states × four 6×6 gains), one
+//!   refresh per 50 ms of DoA time: ≈ 0.9 ms of CPU per second per source.
+//!
+//! The published covariance of a smoothed state adds the current
+//! triangulation's, as for the live estimate (`tracking.correlated_doa_fraction`,
+//! `coordinator::Estimate::smoothed_covariance`): on the ODAS-like DoAs
+//! only 42–87 % of the smoothed states fell inside the smoother's own 99 %
+//! ellipsoid, 100 % of the trusted ones inside the published one.
 //!
 //! Reference: C.-J. Kim, "Dynamic linear models with Markov-switching",
 //! Journal of Econometrics 60 (1994) 1–22.
