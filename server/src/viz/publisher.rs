@@ -8,7 +8,7 @@
 //! |---|---|---|
 //! | `/tf` | `foxglove.FrameTransforms` | `map → {robot}/base → {robot}/array`, per observation |
 //! | `/soundmap/doas` | `foxglove.SceneUpdate` | each robot's DoA rays (entity `doa/{robot}`) |
-//! | `/soundmap/sources` | `foxglove.SceneUpdate` | estimates (`source/{id}`), true sources (`truth/{k}`) |
+//! | `/soundmap/sources` | `foxglove.SceneUpdate` | estimates (`source/{id}`), their smoothed states (`smoothed/{id}`), true sources (`truth/{k}`) |
 //! | `/soundmap/goals` | `foxglove.SceneUpdate` | reposition goals (`goal/{robot}`) |
 //! | `/soundmap/paths` | `foxglove.SceneUpdate` | robot paths (`path/{robot}`), every 0.5 s |
 //! | `/soundmap/room` | `foxglove.SceneUpdate` | room outline and obstacles, every 1 s |
@@ -213,6 +213,9 @@ impl Publisher {
     fn estimate(&mut self, ns: i64, e: &wire::SourceEstimate) {
         log_raw(&self.estimates, ns, || e.encode_to_vec());
         if let Some(entity) = scene::source_entity(ns, e) {
+            self.sources.log_with_time(&one(entity), ns.max(0) as u64);
+        }
+        if let Some(entity) = scene::smoothed_entity(ns, e) {
             self.sources.log_with_time(&one(entity), ns.max(0) as u64);
         }
         let rse = e.position_in_map_m.as_ref().and_then(|p| {

@@ -202,6 +202,45 @@ pub fn source_entity(ns: i64, e: &wire::SourceEstimate) -> Option<SceneEntity> {
     })
 }
 
+/// A source's smoothed state (`SourceEstimate.smoothed`, about a second
+/// behind): a small sky-blue sphere at the smoothed position, its 95 %
+/// ellipsoid when trusted, and "source {id} −{lag} s". `None` without one.
+pub fn smoothed_entity(ns: i64, e: &wire::SourceEstimate) -> Option<SceneEntity> {
+    let s = e.smoothed.as_ref()?;
+    let p = s.position_in_map_m.as_ref()?;
+    let p = Point3::new(p.x, p.y, p.z);
+    let (r, g, b) = (0.25, 0.65, 1.00);
+    let mut spheres = vec![SpherePrimitive {
+        pose: Some(at(&p)),
+        size: Some(FgVector3 { x: 0.1, y: 0.1, z: 0.1 }),
+        color: Some(rgb(r, g, b)),
+    }];
+    let cov = s.position_covariance.as_ref().and_then(soundmap_proto::monitoring::covariance_from_wire);
+    if let Some((q, sizes)) = cov.as_ref().filter(|_| s.trusted).and_then(ellipsoid) {
+        spheres.push(SpherePrimitive {
+            pose: Some(pose(&Isometry3::from_parts(p.coords.into(), q))),
+            size: Some(vector(&sizes)),
+            color: Some(Color { r, g, b, a: 0.15 }),
+        });
+    }
+    Some(SceneEntity {
+        timestamp: Some(timestamp(ns)),
+        frame_id: MAP_FRAME.into(),
+        id: format!("smoothed/{}", e.source_id),
+        lifetime: lifetime(SOURCE_LIFETIME_S),
+        spheres,
+        texts: vec![TextPrimitive {
+            pose: Some(at(&(p - Vector3::new(0.0, 0.0, 0.2)))),
+            billboard: true,
+            font_size: 12.0,
+            scale_invariant: true,
+            color: Some(rgb(r, g, b)),
+            text: format!("source {} −{:.1} s", e.source_id, s.lag_s),
+        }],
+        ..Default::default()
+    })
+}
+
 /// A true source position (simulation and scored replays): a small white sphere.
 pub fn truth_entity(ns: i64, index: usize, p: &Point3<f64>, active: bool) -> SceneEntity {
     SceneEntity {
@@ -280,6 +319,28 @@ pub fn room_entity(ns: i64, room: &[[f64; 2]], obstacles: &[Vec<[f64; 2]>]) -> S
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_smoothed_state_is_drawn_beside_the_estimate() {
+        let mut e = wire::SourceEstimate { source_id: 3, ..Default::default() };
+        assert!(smoothed_entity(0, &e).is_none());
+        e.smoothed = Some(wire::SmoothedState {
+            stamp_ns: 0,
+            lag_s: 1.04,
+            position_in_map_m: Some(wire::Vec3 { x: 1.0, y: 2.0, z: 1.2 }),
+            position_covariance: Some(soundmap_proto::geometry::covariance3_to_wire(
+                &(Matrix3::identity() * 0.01),
+            )),
+            trusted: true,
+            ..Default::default()
+        });
+        let entity = smoothed_entity(5, &e).unwrap();
+        assert_eq!(entity.id, "smoothed/3");
+        assert_eq!(entity.spheres.len(), 2, "the position and, trusted, its ellipsoid");
+        assert_eq!(entity.texts[0].text, "source 3 −1.0 s");
+        e.smoothed.as_mut().unwrap().trusted = false;
+        assert_eq!(smoothed_entity(5, &e).unwrap().spheres.len(), 1);
+    }
 
     #[test]
     fn ellipsoid_of_an_isotropic_covariance_is_a_sphere_of_the_95_percent_radius() {
