@@ -478,10 +478,11 @@ impl SourceTracker {
     /// The track's fixed-lag smoothed state: about
     /// [`TrackerConfig::smoothing_lag_s`] behind the newest applied DoA,
     /// from the DoAs on both sides of it (see [`smoother`]). Refreshed at
-    /// most every [`HISTORY_STEP_S`] of DoA time. `None` without a track,
-    /// with smoothing off, or while the track is younger than the lag.
+    /// most every [`HISTORY_STEP_S`] of DoA time. `None` without a live
+    /// track (none, or lost), with smoothing off, or while the track is
+    /// younger than the lag.
     pub fn smoothed(&self) -> Option<SmoothedEstimate> {
-        self.track.as_ref()?.smoothed.map(|(_, e)| e)
+        self.track.as_ref().filter(|t| t.lost.is_none())?.smoothed.map(|(_, e)| e)
     }
 
     /// The estimate predicted to `stamp` without changing the track (a stamp

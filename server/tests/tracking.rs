@@ -493,6 +493,20 @@ fn the_smoothed_state_is_better_than_the_live_one_and_consistent() {
 }
 
 #[test]
+fn a_lost_track_has_no_smoothed_state() {
+    let config = TrackerConfig { smoothing_lag_s: 1.0, ..moving_config() };
+    let run = moving_run(2, 4.0, 1.0, 4);
+    let (mut tracker, next) = start_moving(&config, &run, 2);
+    for d in &run.doas[next..] {
+        feed(&mut tracker, d);
+    }
+    assert!(tracker.smoothed().is_some());
+    tracker.maintain(at(run.doas.last().unwrap().t + 60.0));
+    assert!(tracker.loss().is_some());
+    assert_eq!(tracker.smoothed(), None);
+}
+
+#[test]
 fn no_smoothed_state_when_switched_off() {
     let config = TrackerConfig { smoothing_lag_s: 0.0, ..moving_config() };
     let run = moving_run(2, 4.0, 1.0, 3);
