@@ -39,6 +39,8 @@ pub mod noise;
 mod outcome;
 pub mod smoother;
 mod step;
+#[cfg(test)]
+mod test_support;
 
 use std::collections::VecDeque;
 

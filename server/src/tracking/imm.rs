@@ -231,32 +231,16 @@ impl ImmState {
 
 #[cfg(test)]
 mod tests {
-    use nalgebra::{Point3, Unit, Vector3};
+    use nalgebra::{Point3, Vector3};
 
     use super::*;
+    use crate::tracking::test_support::{MODEL, modes, ray};
 
-    const MODEL: DoaNoiseModel =
-        DoaNoiseModel { variance_inflation: 1.0, min_sigma_rad: 1e-4, min_range_m: 0.3 };
-    const MODES: Modes = Modes {
-        still: Some(Diffusion { horizontal_m2_per_s: 0.002, vertical_m2_per_s: 0.0005 }),
-        moving: ProcessNoise { horizontal_m2_per_s3: 0.5, vertical_m2_per_s3: 0.01 },
-        sojourn_s: 4.0,
-    };
+    const MODES: Modes = modes(4.0);
     const MOVING_ONLY: Modes = Modes { still: None, ..MODES };
 
     fn start(at: Point3<f64>) -> ImmState {
-        let p = Matrix6::from_diagonal(&Vector6::new(0.01, 0.01, 0.01, 1.0, 1.0, 0.09));
-        ImmState::new(CvState::new(at, Vector3::zeros(), p))
-    }
-
-    fn ray(origin: Point3<f64>, target: Point3<f64>, sigma_rad: f64) -> Ray {
-        Ray {
-            origin_in_map: origin,
-            direction_in_map: Unit::new_normalize(target - origin),
-            sigma_rad,
-            origin_sigma_m: 0.0,
-            fold: None,
-        }
+        crate::tracking::test_support::start(at, 0.01)
     }
 
     /// Runs `steps` DoAs at 10 Hz from two arrays, alternating, at the

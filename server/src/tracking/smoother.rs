@@ -173,35 +173,17 @@ pub(super) fn smooth(history: &[(Stamp, &ImmState)], at: usize, modes: &Modes) -
 
 #[cfg(test)]
 mod tests {
-    use nalgebra::{Point3, Unit, Vector3, Vector6};
+    use nalgebra::{Point3, Vector3, Vector6};
 
     use super::*;
-    use crate::ray::Ray;
-    use crate::tracking::filter::{DoaNoiseModel, ProcessNoise, doa_innovation, joseph_update};
-    use crate::tracking::imm::Diffusion;
+    use crate::tracking::filter::{doa_innovation, joseph_update};
+    use crate::tracking::test_support::{MODEL, modes, ray};
 
-    const MODEL: DoaNoiseModel =
-        DoaNoiseModel { variance_inflation: 1.0, min_sigma_rad: 1e-4, min_range_m: 0.3 };
-    const MODES: Modes = Modes {
-        still: Some(Diffusion { horizontal_m2_per_s: 0.002, vertical_m2_per_s: 0.0005 }),
-        moving: ProcessNoise { horizontal_m2_per_s3: 0.5, vertical_m2_per_s3: 0.01 },
-        sojourn_s: 30.0,
-    };
+    const MODES: Modes = modes(30.0);
     const MOVING_ONLY: Modes = Modes { still: None, ..MODES };
 
     fn start(at: Point3<f64>) -> ImmState {
-        let p = Matrix6::from_diagonal(&Vector6::new(0.04, 0.04, 0.04, 1.0, 1.0, 0.09));
-        ImmState::new(CvState::new(at, Vector3::zeros(), p))
-    }
-
-    fn ray(origin: Point3<f64>, target: Point3<f64>, sigma_rad: f64) -> Ray {
-        Ray {
-            origin_in_map: origin,
-            direction_in_map: Unit::new_normalize(target - origin),
-            sigma_rad,
-            origin_sigma_m: 0.0,
-            fold: None,
-        }
+        crate::tracking::test_support::start(at, 0.04)
     }
 
     /// Filtered states of a source on `path`, heard at 10 Hz by two arrays in

@@ -163,82 +163,113 @@ pub fn ellipsoid(cov: &Matrix3<f64>) -> Option<(UnitQuaternion<f64>, Vector3<f64
     Some((rotation, sizes))
 }
 
+/// How a point marker is drawn: its colour, sphere size (m), ellipsoid
+/// opacity, and its label's colour, font size and height above the point (m).
+struct Marker {
+    rgb: (f64, f64, f64),
+    size_m: f64,
+    ellipsoid_alpha: f64,
+    label_rgb: (f64, f64, f64),
+    font_size: f64,
+    label_dz_m: f64,
+}
+
+/// A sphere at `p`, its 95 % ellipsoid when `cov` is given, and `label`.
+fn marker_entity(
+    ns: i64,
+    id: String,
+    p: Point3<f64>,
+    cov: Option<&Matrix3<f64>>,
+    m: &Marker,
+    label: String,
+) -> SceneEntity {
+    let (r, g, b) = m.rgb;
+    let mut spheres = vec![SpherePrimitive {
+        pose: Some(at(&p)),
+        size: Some(FgVector3 { x: m.size_m, y: m.size_m, z: m.size_m }),
+        color: Some(rgb(r, g, b)),
+    }];
+    if let Some((q, sizes)) = cov.and_then(ellipsoid) {
+        spheres.push(SpherePrimitive {
+            pose: Some(pose(&Isometry3::from_parts(p.coords.into(), q))),
+            size: Some(vector(&sizes)),
+            color: Some(Color { r, g, b, a: m.ellipsoid_alpha }),
+        });
+    }
+    SceneEntity {
+        timestamp: Some(timestamp(ns)),
+        frame_id: MAP_FRAME.into(),
+        id,
+        lifetime: lifetime(SOURCE_LIFETIME_S),
+        spheres,
+        texts: vec![TextPrimitive {
+            pose: Some(at(&(p + Vector3::new(0.0, 0.0, m.label_dz_m)))),
+            billboard: true,
+            font_size: m.font_size,
+            scale_invariant: true,
+            color: Some(rgb(m.label_rgb.0, m.label_rgb.1, m.label_rgb.2)),
+            text: label,
+        }],
+        ..Default::default()
+    }
+}
+
 /// A source estimate: a sphere at its position, its 95 % ellipsoid, and its id
 /// as text; green when trusted, orange when not. `None` without a position.
 pub fn source_entity(ns: i64, e: &wire::SourceEstimate) -> Option<SceneEntity> {
     let p = e.position_in_map_m.as_ref()?;
-    let p = Point3::new(p.x, p.y, p.z);
-    let (r, g, b) = if e.trusted { (0.10, 0.80, 0.25) } else { (1.00, 0.55, 0.05) };
-    let mut spheres = vec![SpherePrimitive {
-        pose: Some(at(&p)),
-        size: Some(FgVector3 { x: 0.15, y: 0.15, z: 0.15 }),
-        color: Some(rgb(r, g, b)),
-    }];
+    let rgb = if e.trusted { (0.10, 0.80, 0.25) } else { (1.00, 0.55, 0.05) };
+    let marker = Marker {
+        rgb,
+        size_m: 0.15,
+        ellipsoid_alpha: 0.25,
+        label_rgb: (1.0, 1.0, 1.0),
+        font_size: 14.0,
+        label_dz_m: 0.25,
+    };
     let cov = e.covariance.as_ref().and_then(soundmap_proto::monitoring::covariance_from_wire);
-    if let Some((q, sizes)) = cov.as_ref().and_then(ellipsoid) {
-        spheres.push(SpherePrimitive {
-            pose: Some(pose(&Isometry3::from_parts(p.coords.into(), q))),
-            size: Some(vector(&sizes)),
-            color: Some(Color { r, g, b, a: 0.25 }),
-        });
-    }
     let label =
         if e.trusted { format!("source {}", e.source_id) } else { format!("source {} ?", e.source_id) };
-    Some(SceneEntity {
-        timestamp: Some(timestamp(ns)),
-        frame_id: MAP_FRAME.into(),
-        id: format!("source/{}", e.source_id),
-        lifetime: lifetime(SOURCE_LIFETIME_S),
-        spheres,
-        texts: vec![TextPrimitive {
-            pose: Some(at(&(p + Vector3::new(0.0, 0.0, 0.25)))),
-            billboard: true,
-            font_size: 14.0,
-            scale_invariant: true,
-            color: Some(rgb(1.0, 1.0, 1.0)),
-            text: label,
-        }],
-        ..Default::default()
-    })
+    Some(marker_entity(
+        ns,
+        format!("source/{}", e.source_id),
+        Point3::new(p.x, p.y, p.z),
+        cov.as_ref(),
+        &marker,
+        label,
+    ))
 }
+
+const SMOOTHED_RGB: (f64, f64, f64) = (0.25, 0.65, 1.00);
 
 /// A source's smoothed state (`SourceEstimate.smoothed`, about a second
 /// behind): a small sky-blue sphere at the smoothed position, its 95 %
-/// ellipsoid when trusted, and "source {id} −{lag} s". `None` without one.
+/// ellipsoid when trusted, and "source {id} −{lag} s" below it. `None` without one.
 pub fn smoothed_entity(ns: i64, e: &wire::SourceEstimate) -> Option<SceneEntity> {
     let s = e.smoothed.as_ref()?;
     let p = s.position_in_map_m.as_ref()?;
-    let p = Point3::new(p.x, p.y, p.z);
-    let (r, g, b) = (0.25, 0.65, 1.00);
-    let mut spheres = vec![SpherePrimitive {
-        pose: Some(at(&p)),
-        size: Some(FgVector3 { x: 0.1, y: 0.1, z: 0.1 }),
-        color: Some(rgb(r, g, b)),
-    }];
-    let cov = s.position_covariance.as_ref().and_then(soundmap_proto::monitoring::covariance_from_wire);
-    if let Some((q, sizes)) = cov.as_ref().filter(|_| s.trusted).and_then(ellipsoid) {
-        spheres.push(SpherePrimitive {
-            pose: Some(pose(&Isometry3::from_parts(p.coords.into(), q))),
-            size: Some(vector(&sizes)),
-            color: Some(Color { r, g, b, a: 0.15 }),
-        });
-    }
-    Some(SceneEntity {
-        timestamp: Some(timestamp(ns)),
-        frame_id: MAP_FRAME.into(),
-        id: format!("smoothed/{}", e.source_id),
-        lifetime: lifetime(SOURCE_LIFETIME_S),
-        spheres,
-        texts: vec![TextPrimitive {
-            pose: Some(at(&(p - Vector3::new(0.0, 0.0, 0.2)))),
-            billboard: true,
-            font_size: 12.0,
-            scale_invariant: true,
-            color: Some(rgb(r, g, b)),
-            text: format!("source {} −{:.1} s", e.source_id, s.lag_s),
-        }],
-        ..Default::default()
-    })
+    let marker = Marker {
+        rgb: SMOOTHED_RGB,
+        size_m: 0.1,
+        ellipsoid_alpha: 0.15,
+        label_rgb: SMOOTHED_RGB,
+        font_size: 12.0,
+        label_dz_m: -0.2,
+    };
+    let cov = s
+        .position_covariance
+        .as_ref()
+        .filter(|_| s.trusted)
+        .and_then(soundmap_proto::monitoring::covariance_from_wire);
+    let label = format!("source {} −{:.1} s", e.source_id, s.lag_s);
+    Some(marker_entity(
+        ns,
+        format!("smoothed/{}", e.source_id),
+        Point3::new(p.x, p.y, p.z),
+        cov.as_ref(),
+        &marker,
+        label,
+    ))
 }
 
 /// A true source position (simulation and scored replays): a small white sphere.
