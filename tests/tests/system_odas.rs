@@ -5,8 +5,10 @@
 //! closest-point method on the same DoAs.
 //!
 //! `cargo test -p soundmap-sim --test system_odas -- --nocapture` runs one
-//! 60 s trial; `-- --include-ignored` adds the sweeps over seeds 1–5 (a
-//! swaying talker, a walking one, and both with the single-mode tracker).
+//! 60 s trial of each talker (swaying, walking); `-- --include-ignored` adds
+//! the sweeps over seeds 1–5 (both talkers, and both with the single-mode
+//! tracker). Each run is scored twice: the live estimates, and the smoothed
+//! states published beside them a second behind (`SourceEstimate.smoothed`).
 
 use std::time::Instant;
 
