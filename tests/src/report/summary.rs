@@ -167,6 +167,10 @@ pub struct SmoothedSummary {
     pub nees_above_chi2_99_trusted_ratio: Option<f64>,
     /// Trusted ones at a true θ below 20° (or above 160°) with an RSE over 0.5 m.
     pub trusted_low_theta_over_0_5_m: usize,
+    /// The multi-target figures of the smoothed states as a map of sources:
+    /// [`MultiTargetSummary`] with each state at its own stamp, scored up to
+    /// the run's end minus the longest lag (the last states come after it).
+    pub multi_target: Option<MultiTargetSummary>,
 }
 
 impl SmoothedSummary {
@@ -211,8 +215,33 @@ impl SmoothedSummary {
             nees_above_chi2_99_trusted_ratio: (!nees.is_empty())
                 .then(|| nees.iter().filter(|v| **v > CHI2_3DOF_99).count() as f64 / nees.len() as f64),
             trusted_low_theta_over_0_5_m: low_theta_bad,
+            multi_target: MultiTargetSummary::new(&as_record_of_smoothed_states(record, &states)),
         })
     }
+}
+
+/// `record` with its rows replaced by `states` (each at its own stamp, in
+/// time order) and its duration cut by the longest lag.
+fn as_record_of_smoothed_states(
+    record: &RunRecord,
+    states: &[(&super::record::TimelineRow, &super::record::SmoothedRow)],
+) -> RunRecord {
+    let mut rows: Vec<super::record::TimelineRow> = states
+        .iter()
+        .map(|(r, s)| super::record::TimelineRow {
+            t_s: s.t_s,
+            estimate_in_map: Some(s.estimate_in_map),
+            truth_in_map: s.truth_in_map,
+            true_theta_deg: s.true_theta_deg,
+            covariance: s.covariance,
+            trusted: s.trusted,
+            smoothed: None,
+            ..(*r).clone()
+        })
+        .collect();
+    rows.sort_by(|a, b| a.t_s.total_cmp(&b.t_s));
+    let lag = states.iter().map(|(r, s)| r.t_s - s.t_s).fold(0.0, f64::max);
+    RunRecord { rows, duration_s: (record.duration_s - lag).max(0.0), ..record.clone() }
 }
 
 /// Values of `values` at the rows where `keep` holds.
