@@ -5,12 +5,12 @@
 use std::collections::HashMap;
 use std::path::{Path, PathBuf};
 
-use nalgebra::Point3;
+use nalgebra::{Matrix3, Point3};
 use serde_json::Value;
 use soundmap_sim::SimError;
 use soundmap_sim::report::{
-    PLOT_STEMS, RobotPath, RoomOutline, RunRecord, SourceTruth, TimelineRow, format_comparison_table,
-    format_summary_table, write_comparison, write_reports,
+    PLOT_STEMS, RobotPath, RoomOutline, RunRecord, SmoothedRow, SourceTruth, TimelineRow,
+    format_comparison_table, format_summary_table, write_comparison, write_reports,
 };
 
 const TOL: f64 = 1e-6;
@@ -115,13 +115,23 @@ fn timeline_has_the_columns_and_values_of_the_rows() {
     rows[1].method = "kalman_filter".into();
     rows[1].trusted = false;
     rows[2].estimate_in_map = None;
+    // A smoothed state 1 s behind the second row, 0.05 m from its truth.
+    rows[1].smoothed = Some(SmoothedRow {
+        t_s: -0.5,
+        estimate_in_map: Point3::new(2.05, 1.0, 1.2),
+        covariance: Some(Matrix3::identity() * 0.01),
+        truth_in_map: Some(Point3::new(2.0, 1.0, 1.2)),
+        true_theta_deg: Some(90.0),
+        trusted: true,
+    });
     let dir = out_dir("timeline");
     write_reports(&record(rows, 2.0), &dir).unwrap();
 
     let (header, cells) = read_csv(&dir.join("timeline.csv"));
     let expected = "t_s,d1_m,d2_m,theta_deg,gdop,est_x_m,est_y_m,est_z_m,truth_x_m,truth_y_m,truth_z_m,rse_m,\
                     true_theta_deg,theta_in_band,trusted,method,robots,tri_x_m,tri_y_m,tri_z_m,tri_rse_m,nees,\
-                    source_id,truth_source";
+                    source_id,truth_source,smooth_t_s,smooth_x_m,smooth_y_m,smooth_z_m,smooth_rse_m,smooth_nees,\
+                    smooth_trusted";
     assert_eq!(header.join(","), expected);
     assert_eq!(cells.len(), 3);
 
@@ -137,6 +147,15 @@ fn timeline_has_the_columns_and_values_of_the_rows() {
         ("false", "true", "ray_pair", "r1;r2")
     );
     assert_eq!((r0["tri_x_m"], r0["tri_rse_m"]), ("", ""));
+    assert_eq!((r0["smooth_t_s"], r0["smooth_rse_m"], r0["smooth_trusted"]), ("", "", ""));
+    let r1 = by_name(&header, &cells[1]);
+    assert!((num(r1["smooth_t_s"]) + 0.5).abs() < TOL && (num(r1["smooth_x_m"]) - 2.05).abs() < TOL);
+    assert!((num(r1["smooth_rse_m"]) - 0.05).abs() < TOL);
+    assert!((num(r1["smooth_nees"]) - 0.25).abs() < TOL, "0.05² / 0.01");
+    assert_eq!(r1["smooth_trusted"], "true");
+    let summary = summary_json(&dir);
+    assert_eq!(summary["smoothed"]["states"], 1);
+    assert!(close(&summary["smoothed"]["rse_p95_in_band_m"], 0.05));
 
     let r1 = by_name(&header, &cells[1]);
     assert_eq!(r1["gdop"], "inf");
