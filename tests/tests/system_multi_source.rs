@@ -121,7 +121,7 @@ fn run_and_check(name: &str, seed: Option<u64>, need_estimates: bool) -> Summary
     let scored: usize = m.sources.iter().map(|s| s.estimates).sum();
     assert_eq!(scored, record.rows.len(), "each row is scored against exactly one source");
     let header = std::fs::read_to_string(dir.join("timeline.csv")).unwrap();
-    assert!(header.lines().next().unwrap().ends_with(",source_id,truth_source"));
+    assert!(header.lines().next().unwrap().contains(",source_id,truth_source,smooth_t_s,"));
     let _ = std::fs::remove_dir_all(&dir);
     summary
 }
