@@ -27,7 +27,7 @@ fn percent(v: Option<f64>) -> String {
 type Line = (&'static str, fn(&Summary) -> String);
 
 /// The lines shown, in order.
-fn lines(with_triangulation: bool, with_multi: bool) -> Vec<Line> {
+fn lines(with_triangulation: bool, with_smoothed: bool, with_multi: bool) -> Vec<Line> {
     let mut lines: Vec<Line> = vec![
         ("active positioning", |s| if s.active_positioning { "on".into() } else { "off".into() }),
         ("seed", |s| s.seed.map_or_else(|| "—".into(), |v| v.to_string())),
@@ -55,6 +55,16 @@ fn lines(with_triangulation: bool, with_multi: bool) -> Vec<Line> {
             metres(s.triangulation.as_ref().and_then(|t| t.rse_median_m))
         }));
         lines.push(("triangulation RSE p95", |s| metres(s.triangulation.as_ref().and_then(|t| t.rse_p95_m))));
+    }
+    if with_smoothed {
+        lines.push(("smoothed states (lag)", |s| {
+            s.smoothed.as_ref().map_or("—".into(), |m| {
+                format!("{} ({})", m.states, m.lag_mean_s.map_or("—".into(), |l| format!("{l:.2} s")))
+            })
+        }));
+        lines.push(("smoothed RSE p95, θ in band", |s| {
+            metres(s.smoothed.as_ref().and_then(|m| m.rse_p95_in_band_m))
+        }));
     }
     if with_multi {
         lines.push(("sources: true / ids", |s| {
@@ -90,6 +100,7 @@ fn band_line(s: &Summary) -> String {
 /// Rows of a table with one value column per summary, titled by `headers`.
 fn table(summaries: &[&Summary], headers: &[&str]) -> String {
     let with_tri = summaries.iter().any(|s| s.triangulation.is_some());
+    let with_smoothed = summaries.iter().any(|s| s.smoothed.is_some());
     let with_multi = summaries.iter().any(|s| s.multi_target.as_ref().is_some_and(|m| m.true_sources > 1));
     let mut out = String::new();
     let _ = write!(out, "{:<LABEL_WIDTH$}", "");
@@ -99,7 +110,7 @@ fn table(summaries: &[&Summary], headers: &[&str]) -> String {
     out.push('\n');
     let rule = LABEL_WIDTH + VALUE_WIDTH * headers.len();
     let _ = writeln!(out, "{}", "─".repeat(rule));
-    for (label, value) in lines(with_tri, with_multi) {
+    for (label, value) in lines(with_tri, with_smoothed, with_multi) {
         let _ = write!(out, "{label:<LABEL_WIDTH$}");
         for s in summaries {
             let _ = write!(out, "{:>VALUE_WIDTH$}", value(s));
