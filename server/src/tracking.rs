@@ -195,8 +195,11 @@ impl Track {
     fn settle(&mut self, lag_ns: i64) {
         let (base, _) = self.buffer.base();
         let (t, filter) = (base.filter_stamp, base.filter);
-        if self.settled.back().is_none_or(|(last, _)| t.seconds_since(*last) >= HISTORY_STEP_S) {
-            self.settled.push_back((t, filter));
+        match self.settled.back_mut() {
+            // DoAs applied at one stamp: the later state holds them all.
+            Some(last) if last.0 == t => last.1 = filter,
+            Some(last) if t.seconds_since(last.0) < HISTORY_STEP_S => {}
+            _ => self.settled.push_back((t, filter)),
         }
         let horizon = self.buffer.latest().0.filter_stamp.plus_ns(-lag_ns);
         while self.settled.len() >= 2 && self.settled[1].0 <= horizon {
@@ -211,14 +214,15 @@ impl Track {
         let newest = latest.filter_stamp;
         let mut history: Vec<(Stamp, &ImmState)> = Vec::with_capacity(self.settled.len() + 64);
         history.extend(self.settled.iter().map(|(t, s)| (*t, s)));
-        for (snapshot, _) in self.buffer.states() {
-            let t = snapshot.filter_stamp;
-            if history.last().is_none_or(|(last, _)| t.seconds_since(*last) >= HISTORY_STEP_S) {
-                history.push((t, &snapshot.filter));
+        // At most one state per HISTORY_STEP_S; of the states at one stamp
+        // (DoAs applied at the same time), the last; the newest state always.
+        let states = self.buffer.states().map(|(s, _)| (s.filter_stamp, &s.filter));
+        for (t, filter) in states.chain(std::iter::once((newest, &latest.filter))) {
+            match history.last_mut() {
+                Some(last) if last.0 == t => last.1 = filter,
+                Some(last) if t.seconds_since(last.0) < HISTORY_STEP_S && t < newest => {}
+                _ => history.push((t, filter)),
             }
-        }
-        if history.last().is_none_or(|(last, _)| *last < newest) {
-            history.push((newest, &latest.filter));
         }
         let target = newest.plus_ns(-lag_ns);
         let at = history.partition_point(|(t, _)| *t <= target).checked_sub(1)?;
