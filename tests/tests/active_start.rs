@@ -8,7 +8,7 @@
 //! `cargo test -p soundmap-sim --test active_start -- --ignored --nocapture`.
 
 use soundmap_sim::report::derived::Derived;
-use soundmap_sim::report::{RunRecord, Summary};
+use soundmap_sim::report::{RunRecord, Summary, distinct_smoothed_states};
 use soundmap_sim::runner::{RunOptions, run};
 use soundmap_sim::scenario::Scenario;
 
@@ -37,12 +37,9 @@ struct Figures {
 /// distinct state once.
 fn smoothed_p95_after(record: &RunRecord, from_s: Option<f64>) -> Option<f64> {
     let from_s = from_s?;
-    let mut seen = std::collections::HashSet::new();
-    let mut e: Vec<f64> = record
-        .rows
-        .iter()
-        .filter_map(|r| Some((r.source_id, r.smoothed.as_ref()?)))
-        .filter(|(id, s)| s.t_s >= from_s && seen.insert((*id, s.t_s.to_bits())))
+    let mut e: Vec<f64> = distinct_smoothed_states(record)
+        .into_iter()
+        .filter(|(_, s)| s.t_s >= from_s)
         .filter_map(|(_, s)| s.rse_m())
         .collect();
     e.sort_by(f64::total_cmp);

@@ -67,15 +67,17 @@ impl Estimate {
     /// averaging cannot remove when the DoAs' errors persist.
     pub fn covariance(&self) -> Option<Matrix3<f64>> {
         match (self.best_source(), &self.filtered) {
-            (BestSource::Filter, Some(f)) => {
-                let floor = self.triangulation.solution().and_then(|s| s.quality.covariance);
-                Some(
-                    f.position_covariance()
-                        + floor.map_or_else(Matrix3::zeros, |c| c * self.correlated_doa_fraction),
-                )
-            }
+            (BestSource::Filter, Some(f)) => Some(f.position_covariance() + self.correlated_floor()),
             _ => self.triangulation.solution().and_then(|s| s.quality.covariance),
         }
+    }
+
+    /// `correlated_doa_fraction` × the current triangulation's covariance
+    /// (zero without one): what averaging the DoAs cannot remove when their
+    /// errors persist, added to the filter's and the smoother's own.
+    fn correlated_floor(&self) -> Matrix3<f64> {
+        let floor = self.triangulation.solution().and_then(|s| s.quality.covariance);
+        floor.map_or_else(Matrix3::zeros, |c| c * self.correlated_doa_fraction)
     }
 
     /// Covariance of the smoothed state as published (m²): the smoother's own
@@ -84,11 +86,7 @@ impl Estimate {
     /// their errors were independent, and they are not. `None` without a
     /// smoothed state.
     pub fn smoothed_covariance(&self) -> Option<Matrix3<f64>> {
-        let s = self.smoothed.as_ref()?;
-        let floor = self.triangulation.solution().and_then(|t| t.quality.covariance);
-        Some(
-            s.position_covariance() + floor.map_or_else(Matrix3::zeros, |c| c * self.correlated_doa_fraction),
-        )
+        Some(self.smoothed.as_ref()?.position_covariance() + self.correlated_floor())
     }
 
     /// Whether the smoothed state can be trusted to its published covariance:

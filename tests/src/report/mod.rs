@@ -34,7 +34,7 @@ pub use comparison::write_comparison;
 pub use derived::ThetaSource;
 pub use multi::MultiTargetSummary;
 pub use record::{RobotPath, RoomOutline, RunRecord, SmoothedRow, SourceTruth, TimelineRow};
-pub use summary::{SmoothedSummary, Summary, TriangulationSummary};
+pub use summary::{SmoothedSummary, Summary, TriangulationSummary, distinct_smoothed_states};
 pub use table::{format_comparison_table, format_summary_table, print_comparison_table, print_summary_table};
 
 use crate::SimError;

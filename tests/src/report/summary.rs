@@ -25,7 +25,7 @@ use serde::Serialize;
 
 use super::derived::{Derived, ThetaSource};
 use super::multi::MultiTargetSummary;
-use super::record::RunRecord;
+use super::record::{RunRecord, SmoothedRow, TimelineRow};
 use super::stats;
 
 /// RSE below which the paper calls an estimate good (m).
@@ -176,13 +176,7 @@ pub struct SmoothedSummary {
 impl SmoothedSummary {
     /// `None` when no row carries a smoothed state.
     fn new(record: &RunRecord) -> Option<Self> {
-        let mut seen = std::collections::HashSet::new();
-        let states: Vec<(&super::record::TimelineRow, &super::record::SmoothedRow)> = record
-            .rows
-            .iter()
-            .filter_map(|r| Some((r, r.smoothed.as_ref()?)))
-            .filter(|(r, s)| seen.insert((r.source_id, s.t_s.to_bits())))
-            .collect();
+        let states = distinct_smoothed_states(record);
         if states.is_empty() {
             return None;
         }
@@ -193,8 +187,7 @@ impl SmoothedSummary {
             .filter(|(_, s)| s.true_theta_deg.is_some_and(|t| (lo..=hi).contains(&t)))
             .filter_map(|(_, s)| s.rse_m())
             .collect();
-        let trusted: Vec<&super::record::SmoothedRow> =
-            states.iter().map(|(_, s)| *s).filter(|s| s.trusted).collect();
+        let trusted: Vec<&SmoothedRow> = states.iter().map(|(_, s)| *s).filter(|s| s.trusted).collect();
         let nees: Vec<f64> = trusted.iter().filter_map(|s| s.nees()).collect();
         let low_theta_bad = trusted
             .iter()
@@ -212,8 +205,7 @@ impl SmoothedSummary {
             rse_p95_in_band_m: stats::p95(&in_band),
             trusted_ratio: Some(trusted.len() as f64 / states.len() as f64),
             nees_mean_trusted: stats::mean(&nees),
-            nees_above_chi2_99_trusted_ratio: (!nees.is_empty())
-                .then(|| nees.iter().filter(|v| **v > CHI2_3DOF_99).count() as f64 / nees.len() as f64),
+            nees_above_chi2_99_trusted_ratio: share_above(&nees, CHI2_3DOF_99),
             trusted_low_theta_over_0_5_m: low_theta_bad,
             multi_target: MultiTargetSummary::new(&as_record_of_smoothed_states(record, &states)),
         })
@@ -222,13 +214,10 @@ impl SmoothedSummary {
 
 /// `record` with its rows replaced by `states` (each at its own stamp, in
 /// time order) and its duration cut by the longest lag.
-fn as_record_of_smoothed_states(
-    record: &RunRecord,
-    states: &[(&super::record::TimelineRow, &super::record::SmoothedRow)],
-) -> RunRecord {
-    let mut rows: Vec<super::record::TimelineRow> = states
+fn as_record_of_smoothed_states(record: &RunRecord, states: &[(&TimelineRow, &SmoothedRow)]) -> RunRecord {
+    let mut rows: Vec<TimelineRow> = states
         .iter()
-        .map(|(r, s)| super::record::TimelineRow {
+        .map(|(r, s)| TimelineRow {
             t_s: s.t_s,
             estimate_in_map: Some(s.estimate_in_map),
             truth_in_map: s.truth_in_map,
@@ -242,6 +231,24 @@ fn as_record_of_smoothed_states(
     rows.sort_by(|a, b| a.t_s.total_cmp(&b.t_s));
     let lag = states.iter().map(|(r, s)| r.t_s - s.t_s).fold(0.0, f64::max);
     RunRecord { rows, duration_s: (record.duration_s - lag).max(0.0), ..record.clone() }
+}
+
+/// Share of `values` above `limit`; `None` when empty.
+fn share_above(values: &[f64], limit: f64) -> Option<f64> {
+    (!values.is_empty()).then(|| values.iter().filter(|v| **v > limit).count() as f64 / values.len() as f64)
+}
+
+/// The distinct smoothed states of `record`, each with the first row that
+/// carried it: a state is repeated with the estimates published until its
+/// next refresh, and counts once per (source id, stamp).
+pub fn distinct_smoothed_states(record: &RunRecord) -> Vec<(&TimelineRow, &SmoothedRow)> {
+    let mut seen = std::collections::HashSet::new();
+    record
+        .rows
+        .iter()
+        .filter_map(|r| Some((r, r.smoothed.as_ref()?)))
+        .filter(|(r, s)| seen.insert((r.source_id, s.t_s.to_bits())))
+        .collect()
 }
 
 /// Values of `values` at the rows where `keep` holds.
@@ -304,9 +311,7 @@ impl Summary {
             rse_median_trusted_m: stats::median(&trusted),
             rse_p95_trusted_m: stats::p95(&trusted),
             nees_mean_trusted: stats::mean(&nees_trusted),
-            nees_above_chi2_99_trusted_ratio: (!nees_trusted.is_empty()).then(|| {
-                nees_trusted.iter().filter(|v| **v > CHI2_3DOF_99).count() as f64 / nees_trusted.len() as f64
-            }),
+            nees_above_chi2_99_trusted_ratio: share_above(&nees_trusted, CHI2_3DOF_99),
             time_to_band_s,
             in_band_ratio_after_convergence: after_ratio,
             rse_median_after_convergence_m: stats::median(&after_rse),
