@@ -210,6 +210,7 @@ fn signature_stage(array: &ArrayGeometry, config: &PipelineConfig, tracks: usize
             angular_sigma_rad: 0.01,
             confirmed: true,
             silent_s: 0.0,
+            audible_silent_s: 0.0,
             coherence: 0.5,
         })
         .collect();

@@ -10,7 +10,7 @@
 //! from the sample count). A frame's DoAs are stamped at the middle of the
 //! analysed frame: first sample of the frame + `frame_len/(2·fs)`.
 
-use nalgebra::UnitQuaternion;
+use nalgebra::{Point3, UnitQuaternion};
 use soundmap_proto::Stamp;
 
 use crate::array::ArrayGeometry;
@@ -60,10 +60,11 @@ pub struct PipelineConfig {
     /// 9 cm ReSpeaker 6 erred 11.7° at the case median against 2.8° for the
     /// 49 cm 16SoundsUSB, 4.2× for 5.3× less aperture. At 0.4 both
     /// 16SoundsUSB layouts keep the floor as it is and a ReSpeaker 6 gets
-    /// 4.3°, a ReSpeaker 4 6.3°, a UMA-8 4.7°. Default 0 (off): with 0.4, the
-    /// static `cocktail` scenario's OSPA fell 7 % on each of 8 seeds and
-    /// trusted NEES came closer to 3 everywhere, but `crossing` and
-    /// `cocktail-active` got worse (BENCHMARKS.md, "Several sources").
+    /// 4.3°, a ReSpeaker 4 6.3°, a UMA-8 4.7°. Default 0.4 (0 turns it
+    /// off): with the tracker's masking, `cocktail`'s OSPA fell from 0.318 to
+    /// 0.283 m and `cocktail-active`'s from 0.351 to 0.314 m (seeds 1–10),
+    /// with `three-robots` in band 100 % of the time on every seed
+    /// (BENCHMARKS.md, "Masked silences and honest small arrays").
     pub doa_sigma_floor_full_aperture_m: f64,
     /// Most tracks reported per observation (K, 1..=64; default 4): the
     /// confirmed tracks, most active first. Declared in the hello as
@@ -83,7 +84,7 @@ impl Default for PipelineConfig {
             srp: SrpConfig::default(),
             tracker: TrackerConfig::default(),
             doa_sigma_floor_deg: 1.0,
-            doa_sigma_floor_full_aperture_m: 0.0,
+            doa_sigma_floor_full_aperture_m: 0.4,
             max_reported_tracks: 4,
             signature: SignatureConfig::default(),
         }
@@ -196,6 +197,8 @@ pub struct Pipeline {
     doa_sigma_floor_rad: f64,
     /// Longest silence of a reported track, s (see [`TrackerConfig::report_max_silence_s`]).
     report_max_silence_s: f64,
+    /// Longest silence of a reported track that was masked through it, s.
+    masked_report_max_silence_s: f64,
     /// The array's orientation on the base.
     base_from_array: UnitQuaternion<f64>,
     /// The array's orientation in the map that the tracks are expressed in
@@ -203,6 +206,12 @@ pub struct Pipeline {
     tracks_frame: Option<UnitQuaternion<f64>>,
     /// See [`TrackerConfig::rotation_deadband_deg`] (rad).
     rotation_deadband_rad: f64,
+    /// The base's position in the map at the current hop (from SLAM), if given.
+    base_position: Option<Point3<f64>>,
+    /// Where the base was at each track's last detection: (track id, position).
+    heard_at: Vec<(u64, Option<Point3<f64>>)>,
+    /// See [`TrackerConfig::masked_max_travel_m`].
+    masked_max_travel_m: f64,
 }
 
 impl Pipeline {
@@ -255,9 +264,13 @@ impl Pipeline {
             doa_sigma_floor_rad: floor.to_radians()
                 * aperture_scale(array.aperture_m(), config.doa_sigma_floor_full_aperture_m),
             report_max_silence_s: config.tracker.report_max_silence_s,
+            masked_report_max_silence_s: config.tracker.masked_report_max_silence_s,
             base_from_array: array.base_from_array.rotation,
             tracks_frame: None,
             rotation_deadband_rad: config.tracker.rotation_deadband_deg.to_radians(),
+            base_position: None,
+            heard_at: Vec::with_capacity(config.tracker.max_tracks),
+            masked_max_travel_m: config.tracker.masked_max_travel_m,
         })
     }
 
@@ -290,6 +303,7 @@ impl Pipeline {
     pub fn follow_poses(&mut self, poses: &PoseBuffer, first_sample: Stamp) {
         if let Some(p) = poses.lookup(first_sample).ok().or_else(|| poses.last().cloned()) {
             self.set_base_orientation(&p.map_from_base.rotation);
+            self.base_position = Some(Point3::from(p.map_from_base.translation.vector));
         }
     }
 
@@ -356,12 +370,35 @@ impl Pipeline {
         let r = &mut self.result;
         if self.stft.push_hop(interleaved) {
             self.srp.process(self.stft.spectra(), &mut r.potentials);
-            self.tracker.update(&r.potentials, &mut r.tracks);
+            let level_db = self.srp.band_level_db(self.stft.spectra());
+            self.tracker.update_at_level(&r.potentials, level_db, &mut r.tracks);
             r.reported.clear();
-            let max_silence = self.report_max_silence_s;
-            r.reported.extend(
-                (0..r.tracks.len()).filter(|&i| r.tracks[i].confirmed && r.tracks[i].silent_s <= max_silence),
-            );
+            // Where the base was when each track was last heard.
+            let tracks = &r.tracks;
+            self.heard_at.retain(|(id, _)| tracks.iter().any(|t| t.track_id == *id));
+            for t in tracks.iter().filter(|t| t.silent_s == 0.0) {
+                let room = self.heard_at.len() < self.heard_at.capacity();
+                match self.heard_at.iter_mut().find(|(id, _)| *id == t.track_id) {
+                    Some(e) => e.1 = self.base_position,
+                    None if room => self.heard_at.push((t.track_id, self.base_position)),
+                    None => {}
+                }
+            }
+            let (audible, masked) = (self.report_max_silence_s, self.masked_report_max_silence_s);
+            let (heard_at, now, max_travel) = (&self.heard_at, self.base_position, self.masked_max_travel_m);
+            let stayed = |id: u64| {
+                let then = heard_at.iter().find(|(i, _)| *i == id).and_then(|e| e.1);
+                match (now, then) {
+                    (Some(now), Some(then)) => (now - then).norm() <= max_travel,
+                    _ => true,
+                }
+            };
+            r.reported.extend((0..tracks.len()).filter(|&i| {
+                let t = &tracks[i];
+                t.confirmed
+                    && (t.silent_s <= audible
+                        || (t.silent_s <= masked && t.audible_silent_s <= audible && stayed(t.track_id)))
+            }));
             let tracks = &r.tracks;
             r.reported.sort_unstable_by(|&a, &b| {
                 let (a, b) = (&tracks[a], &tracks[b]);
@@ -409,6 +446,7 @@ impl Pipeline {
     pub fn reset(&mut self) {
         self.stft.reset();
         self.tracker.reset();
+        self.heard_at.clear();
         self.tracks_frame = None;
         self.signatures.reset();
         self.result.potentials.clear();

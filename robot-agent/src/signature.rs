@@ -542,6 +542,7 @@ mod tests {
             angular_sigma_rad: 0.01,
             confirmed: true,
             silent_s: 0.0,
+            audible_silent_s: 0.0,
             coherence: 0.5,
         };
         let mut out = Vec::new();
@@ -574,6 +575,7 @@ mod tests {
             angular_sigma_rad: 0.01,
             confirmed: true,
             silent_s: 0.0,
+            audible_silent_s: 0.0,
             coherence: 0.5,
         };
         let tracks = [track(5), track(9)];

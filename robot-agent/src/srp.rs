@@ -320,6 +320,31 @@ impl Srp {
         &self.region
     }
 
+    /// Level of a frame on the band: the mean power per microphone and bin
+    /// before whitening, dB (full scale; −300 dB for silence). `spectra` as
+    /// for [`Srp::process`]. The tracker compares it with the level at which
+    /// each track is heard (see [`crate::doa_tracker`], masking).
+    pub fn band_level_db(&self, spectra: &[Complex<f32>]) -> f64 {
+        let bins = spectra.len() / self.mics.len().max(1);
+        let band = self.cc.band;
+        let mut total = 0.0f64;
+        for mic in spectra.chunks_exact(bins.max(1)) {
+            // Eight partial sums, so that the loop vectorizes.
+            let mut acc = [0.0f32; 8];
+            let band_bins = &mic[band.lo..band.hi.min(mic.len())];
+            let mut chunks = band_bins.chunks_exact(8);
+            for c in &mut chunks {
+                for (a, x) in acc.iter_mut().zip(c) {
+                    *a += x.re * x.re + x.im * x.im;
+                }
+            }
+            let tail: f32 = chunks.remainder().iter().map(|x| x.re * x.re + x.im * x.im).sum();
+            total += acc.iter().map(|&a| a as f64).sum::<f64>() + tail as f64;
+        }
+        let mean = total / (self.mics.len() * band.len()).max(1) as f64;
+        10.0 * mean.max(1e-30).log10()
+    }
+
     /// Number of microphone pairs.
     pub fn pairs(&self) -> usize {
         self.pair_axes.len()

@@ -380,3 +380,72 @@ fn a_track_reports_the_coherence_of_its_peaks() {
     }
     assert!(by_snr[1] > by_snr[0] + 0.2 && by_snr[1] > 0.8, "{by_snr:?}");
 }
+
+/// Masking: a weak steady source is not heard while a source 20 dB louder
+/// plays (1.0–2.5 s), but its track is kept and reported through that
+/// stretch with its id, because the louder hops mask its silence; with
+/// masking off it is dropped from the report 0.3 s in. When the weak source
+/// itself stops (3.0 s) with nothing louder playing, its silence is not
+/// masked and it leaves the report after `report_max_silence_s` as before.
+#[test]
+fn a_weak_source_masked_by_a_loud_one_stays_reported() {
+    use soundmap_agent::doa_tracker::TrackerConfig;
+    let array = ArrayGeometry::load("16soundsusb-pioneer").unwrap();
+    let mics = synth::positions(&array);
+    let (a, b) = (unit(20.0, 25.0), unit(-100.0, 40.0));
+    let mut rng = synth::rng(9);
+    let len = 1 << 16;
+    let xa = synth::plane_wave(&mics, &a, FS, len, &mut rng);
+    let xb = synth::plane_wave(&mics, &b, FS, len, &mut rng);
+    let on = |t: f64, from: f64, to: f64| if (from..to).contains(&t) { 1.0 } else { 0.0 };
+    let mut x: Vec<Vec<f64>> = xa
+        .iter()
+        .zip(&xb)
+        .map(|(u, v)| {
+            (0..len)
+                .map(|n| {
+                    let t = n as f64 / FS;
+                    u[n] * on(t, 0.0, 3.0) + 10.0 * v[n] * on(t, 1.0, 2.5)
+                })
+                .collect()
+        })
+        .collect();
+    synth::add_sensor_noise(&mut x, 20.0, &mut rng);
+    let audio = synth::interleave(&x, 0.02);
+    let run = |masked_s: f64| {
+        let tracker = TrackerConfig { masked_report_max_silence_s: masked_s, ..TrackerConfig::default() };
+        let config = PipelineConfig { tracker, ..PipelineConfig::default() };
+        let mut p = Pipeline::new(&array, &config).unwrap();
+        synth::run(&mut p, &audio)
+    };
+    let t0 = |f: &FrameResult| (f.stamp.as_ns() as f64) * 1e-9;
+    // The weak source's reported track, by direction.
+    let reported_a = |f: &FrameResult| {
+        f.confirmed_doas()
+            .into_iter()
+            .find(|d| synth::angle_deg(&d.direction_in_array, &a) < 5.0)
+            .map(|d| d.track_id)
+    };
+    let start = t0(&run(3.0)[0]);
+    for (masked_s, label) in [(3.0, "masking on"), (0.0, "masking off")] {
+        let frames = run(masked_s);
+        let during: Vec<Option<u64>> =
+            frames.iter().filter(|f| (1.1..2.5).contains(&(t0(f) - start))).map(reported_a).collect();
+        let before = frames.iter().filter(|f| (0.6..0.95).contains(&(t0(f) - start))).find_map(reported_a);
+        let share = during.iter().filter(|id| id.is_some()).count() as f64 / during.len() as f64;
+        let kept = during.iter().all(|id| *id == before);
+        // After the weak source stops at 3.0 s, nothing louder plays.
+        let late = frames.iter().filter(|f| t0(f) - start > 3.0 + 0.3 + 0.05).filter_map(reported_a).count();
+        println!(
+            "{label}: weak source reported in {:.0} % of the loud hops, id kept {kept}, {late} reports 0.35 s after it stopped",
+            100.0 * share
+        );
+        assert!(before.is_some(), "{label}: the weak source is tracked before the loud one starts");
+        assert_eq!(late, 0, "{label}: a source that stops in quiet leaves the report after 0.3 s");
+        if masked_s > 0.0 {
+            assert!(kept, "{label}: reported with its id through the loud stretch: {during:?}");
+        } else {
+            assert!(share < 0.3, "{label}: reported in {:.0} % of the loud hops", 100.0 * share);
+        }
+    }
+}

@@ -231,7 +231,13 @@ impl Planner {
         };
         let source_moved_m =
             self.memory.planned_source.map_or(f64::INFINITY, |p| (Point2::new(p.x, p.y) - centre).norm());
+        // θ once every robot is where it is driving to.
+        let destination_sensors: Vec<Sensor> = robots
+            .iter()
+            .map(|r| sensor_at(&r.destination_xy(), &src, &r.base_from_array, r.sigma_rad))
+            .collect();
         let situation = Situation {
+            destination_theta_deg: assess(&destination_sensors, &src).theta_deg,
             theta_deg: current.theta_deg,
             gdop: current.gdop,
             improvement,

@@ -61,6 +61,22 @@ pub struct TrackerConfig {
     /// this old, seconds: a coasting track keeps its id but its direction is
     /// a guess, and it is in the array frame, which turns with the robot.
     pub report_max_silence_s: f64,
+    /// A confirmed track whose silence was *masked* (hops at least
+    /// `masking_margin_db` louder than the level it is heard at) except for
+    /// at most `report_max_silence_s` of it is kept and reported for up to
+    /// this long, seconds (a value at or below `report_max_silence_s` turns
+    /// masking off). A weak steady source (a fan 14 dB below two talkers) is
+    /// not heard while louder sources fill the frames: its silence then says
+    /// nothing about whether it stopped. See the module docs, "Masking".
+    pub masked_report_max_silence_s: f64,
+    /// How much louder than a track's own level (the frame level at its
+    /// detections, averaged in dB) a hop must be to mask its silence, dB.
+    pub masking_margin_db: f64,
+    /// A track kept only by masking is reported while the base has moved at
+    /// most this far since its last detection, m (from the SLAM poses the
+    /// pipeline follows): its direction is where the source was heard from
+    /// there, and 0.1 m moves the bearing of a source 2 m away by ≤ 3°.
+    pub masked_max_travel_m: f64,
     /// Two tracks closer than this merge (the younger dies), degrees.
     pub merge_deg: f64,
     /// Tracks follow the robot's turns (the pipeline re-expresses them when
@@ -96,6 +112,9 @@ impl Default for TrackerConfig {
             max_coast_s: 1.5,
             coast_velocity_time_constant_s: 0.2,
             report_max_silence_s: 0.3,
+            masked_report_max_silence_s: 3.0,
+            masking_margin_db: 10.0,
+            masked_max_travel_m: 0.1,
             merge_deg: 5.0,
             rotation_deadband_deg: 1.0,
             max_tracks: 8,

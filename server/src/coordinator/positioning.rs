@@ -245,6 +245,7 @@ impl Positioning {
     }
 
     fn record(&mut self, now: Stamp, kind: PlanKind, key: &'static str, detail: String) {
+        tracing::debug!(at_ns = now.as_ns(), key, detail = %detail, "planner decision");
         let previous = self.status.take();
         self.status = Some(PlannerStatus {
             decided: now,

@@ -11,7 +11,10 @@
 //!   does not toggle the robots.
 //! - Robots driving to goals keep them while the goals stay valid and the
 //!   source has moved less than `follow_distance_m` from where it was when they
-//!   were planned; the target pattern is sticky (see [`bearings`](super::bearings)).
+//!   were planned, unless a θ correction is under way and θ at the goals would
+//!   still be short of its release (a first step planned to the band's edge
+//!   parked three robots at θ 38–40° for 4 s in `three-robots`); the target
+//!   pattern is sticky (see [`bearings`](super::bearings)).
 //! - An idle robot the source has come closer to than r_min (or left beyond
 //!   r_max) is re-tasked even when θ and GDOP are fine.
 //! - Re-tasking happens at most once per planning period (see [`cadence`](super::cadence)).
@@ -45,6 +48,8 @@ impl Memory {
 pub(crate) struct Situation {
     /// Best pairwise θ now (degrees).
     pub theta_deg: f64,
+    /// Best pairwise θ with every robot at its active goal (or where it is).
+    pub destination_theta_deg: f64,
     /// GDOP now.
     pub gdop: f64,
     /// Predicted relative reduction of √tr J⁻¹ at the target pattern (≤ 1).
@@ -99,7 +104,13 @@ pub(crate) fn trigger(
 /// Decides this cycle.
 pub(crate) fn decide(cfg: &PlannerConfig, engaged: Option<RepositionReason>, s: &Situation) -> Decision {
     if s.busy {
-        if s.goals_valid && s.source_moved_m < cfg.follow_distance_m {
+        // Goals that would leave a θ correction unfinished are not held: a
+        // step planned to the band's edge (the sampling search's nearest
+        // feasible spots) would otherwise park the robots just outside it.
+        let unfinished = engaged == Some(RepositionReason::ThetaOutOfBand)
+            && trigger(cfg, engaged, &Situation { theta_deg: s.destination_theta_deg, ..*s })
+                == Some(RepositionReason::ThetaOutOfBand);
+        if s.goals_valid && s.source_moved_m < cfg.follow_distance_m && !unfinished {
             return Decision::Hold(HoldReason::GoalsInProgress);
         }
         return Decision::Replan(trigger(cfg, engaged, s).unwrap_or(RepositionReason::FollowSource));
@@ -122,6 +133,7 @@ mod tests {
     fn situation(theta_deg: f64, gdop: f64, improvement: f64) -> Situation {
         Situation {
             theta_deg,
+            destination_theta_deg: theta_deg,
             gdop,
             improvement,
             busy: false,
@@ -187,5 +199,21 @@ mod tests {
         assert!(matches!(decide(&cfg, None, &s), Decision::Hold(HoldReason::GeometryGood { .. })));
         s.idle_out_of_ring = true;
         assert_eq!(decide(&cfg, None, &s), Decision::Replan(RepositionReason::FollowSource));
+    }
+
+    #[test]
+    fn goals_that_leave_theta_short_of_the_band_are_not_held() {
+        let cfg = PlannerConfig::default();
+        let engaged = Some(RepositionReason::ThetaOutOfBand);
+        // Driving to goals whose θ (41°) is inside 40–140° but short of the
+        // correction's release (55°): re-plan.
+        let short = Situation { busy: true, destination_theta_deg: 41.0, ..situation(38.0, 2.0, 0.0) };
+        assert_eq!(decide(&cfg, engaged, &short), Decision::Replan(RepositionReason::ThetaOutOfBand));
+        // Goals that finish the correction are kept.
+        let enough = Situation { destination_theta_deg: 70.0, ..short };
+        assert_eq!(decide(&cfg, engaged, &enough), Decision::Hold(HoldReason::GoalsInProgress));
+        // Without a θ correction under way the goals are kept as before.
+        let other = Some(RepositionReason::GdopHigh);
+        assert_eq!(decide(&cfg, other, &short), Decision::Hold(HoldReason::GoalsInProgress));
     }
 }
