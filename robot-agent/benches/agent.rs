@@ -211,6 +211,7 @@ fn signature_stage(array: &ArrayGeometry, config: &PipelineConfig, tracks: usize
             confirmed: true,
             silent_s: 0.0,
             audible_silent_s: 0.0,
+            held_by_masking: false,
             coherence: 0.5,
         })
         .collect();

@@ -67,7 +67,8 @@
 //! coasts and its σ grows with the filter's prediction (≈ 3–4° after 2 s).
 //! Only while the robot stays put: once the base has moved more than
 //! [`TrackerConfig::masked_max_travel_m`] (0.1 m) since the track's last
-//! detection, the pipeline stops reporting it (a bearing heard from
+//! detection (positions from the SLAM poses the pipeline follows), it is no
+//! longer held (`held_by_masking`) and the pipeline stops reporting it (a bearing heard from
 //! elsewhere would make the coordinator's rays meet where nothing is).
 //! Why: PHAT coherence is scale-free, so a fan 14 dB below two talkers gives
 //! the same coherence (0.12–0.15 at 2–3 m, RT60 0.5 s) as they do when it is
@@ -105,7 +106,7 @@
 pub mod config;
 pub mod sphere_kf;
 
-use nalgebra::{Rotation3, Unit, Vector3};
+use nalgebra::{Point3, Rotation3, Unit, Vector3};
 
 use crate::error::AgentError;
 use crate::srp::PotentialSource;
@@ -138,6 +139,12 @@ pub struct TrackedDirection {
     /// The part of `silent_s` in which the track was not masked (hops less
     /// than `masking_margin_db` louder than its own level), seconds.
     pub audible_silent_s: f64,
+    /// Silent for longer than `report_max_silence_s` would allow, but held
+    /// by masking: its silence was masked except for at most that long, it
+    /// is within `masked_report_max_silence_s`, and the base has moved at
+    /// most `masked_max_travel_m` since its last detection (see the module
+    /// docs, "Masking").
+    pub held_by_masking: bool,
     /// PHAT coherence of the potentials that fed the track, averaged over
     /// about its last 20 ([`COHERENCE_WEIGHT`]).
     pub coherence: f64,
@@ -176,6 +183,8 @@ struct Track {
     unmasked_silent: u32,
     /// Frame level at its detections, averaged (dB; NaN until known).
     level_db: f64,
+    /// Where the base was at its last detection (map, m), if known.
+    heard_from: Option<Point3<f64>>,
     hits_since_birth: u32,
     confirmed: bool,
 }
@@ -322,17 +331,20 @@ impl DoaTracker {
     /// tracks to `out` (cleared first; no allocation once `out` has
     /// `max_tracks` capacity).
     pub fn update(&mut self, potentials: &[PotentialSource], out: &mut Vec<TrackedDirection>) {
-        self.update_at_level(potentials, f64::NAN, out);
+        self.update_at(potentials, f64::NAN, None, out);
     }
 
     /// [`DoaTracker::update`] for a frame of level `level_db` (the band's
     /// mean power per microphone and bin, dB, [`crate::srp::Srp::band_level_db`];
-    /// NaN if unknown): silences in frames much louder than a track is heard
-    /// at are masked (see the module docs).
-    pub fn update_at_level(
+    /// NaN if unknown) heard with the base at `base_position` (map, m; from
+    /// SLAM, if known): silences in frames much louder than a track is heard
+    /// at are masked, while the base stays near where it heard the track
+    /// (see the module docs).
+    pub fn update_at(
         &mut self,
         potentials: &[PotentialSource],
         level_db: f64,
+        base_position: Option<Point3<f64>>,
         out: &mut Vec<TrackedDirection>,
     ) {
         self.frame += 1;
@@ -344,11 +356,18 @@ impl DoaTracker {
             }
             t.kf.predict(self.dt, cfg.acceleration_noise);
         }
-        self.associate(potentials, level_db);
-        self.births(potentials, level_db);
+        self.associate(potentials, level_db, base_position);
+        self.births(potentials, level_db, base_position);
         self.prune();
         out.clear();
+        let cfg = &self.config;
         for t in &self.tracks {
+            let silent_s = (self.frame - t.last_hit_frame) as f64 * self.dt;
+            let audible_silent_s = t.unmasked_silent as f64 * self.dt;
+            let travel_m = match (base_position, t.heard_from) {
+                (Some(now), Some(then)) => (now - then).norm(),
+                _ => 0.0,
+            };
             let sigma = t.kf.sigma().max(self.config.min_sigma_deg.to_radians());
             out.push(TrackedDirection {
                 track_id: t.id,
@@ -356,14 +375,22 @@ impl DoaTracker {
                 activity: t.activity,
                 angular_sigma_rad: sigma,
                 confirmed: t.confirmed,
-                silent_s: (self.frame - t.last_hit_frame) as f64 * self.dt,
-                audible_silent_s: t.unmasked_silent as f64 * self.dt,
+                silent_s,
+                audible_silent_s,
+                held_by_masking: silent_s <= cfg.masked_report_max_silence_s
+                    && audible_silent_s <= cfg.report_max_silence_s
+                    && travel_m <= cfg.masked_max_travel_m,
                 coherence: t.coherence,
             });
         }
     }
 
-    fn associate(&mut self, potentials: &[PotentialSource], level_db: f64) {
+    fn associate(
+        &mut self,
+        potentials: &[PotentialSource],
+        level_db: f64,
+        base_position: Option<Point3<f64>>,
+    ) {
         let cfg = &self.config;
         self.used.clear();
         self.used.resize(potentials.len().min(self.used.capacity()), false);
@@ -409,6 +436,7 @@ impl DoaTracker {
             t.coherence += COHERENCE_WEIGHT * (potentials[pi].energy - t.coherence);
             t.last_hit_frame = self.frame;
             t.unmasked_silent = 0;
+            t.heard_from = base_position;
             if level_db.is_finite() {
                 t.level_db = if t.level_db.is_finite() {
                     t.level_db + COHERENCE_WEIGHT * (level_db - t.level_db)
@@ -433,7 +461,7 @@ impl DoaTracker {
         }
     }
 
-    fn births(&mut self, potentials: &[PotentialSource], level_db: f64) {
+    fn births(&mut self, potentials: &[PotentialSource], level_db: f64, base_position: Option<Point3<f64>>) {
         let cfg = &self.config;
         let gate = cfg.birth_gate_deg.to_radians();
         let window = cfg.birth_window_frames as u64;
@@ -495,6 +523,7 @@ impl DoaTracker {
                     last_hit_frame: frame,
                     unmasked_silent: 0,
                     level_db,
+                    heard_from: base_position,
                     hits_since_birth: 0,
                     confirmed: cfg.confirm_hits == 0,
                 });
@@ -575,20 +604,20 @@ mod tests {
         let d = Vector3::new(0.5, 0.5, 0.7).normalize();
         let mut out = Vec::new();
         for _ in 0..40 {
-            t.update_at_level(&[peak(&d)], -40.0, &mut out);
+            t.update_at(&[peak(&d)], -40.0, None, &mut out);
         }
         assert!(out.len() == 1 && out[0].confirmed);
         let id = out[0].track_id;
         // 9 dB louder: not masked.
         for _ in 0..10 {
-            t.update_at_level(&[], -31.0, &mut out);
+            t.update_at(&[], -31.0, None, &mut out);
         }
         assert!(
             (out[0].audible_silent_s - 10.0 * 0.008).abs() < 1e-9 && (out[0].silent_s - 0.08).abs() < 1e-9
         );
         // 11 dB louder: masked, for longer than max_coast_s (1.5 s).
         for _ in 0..250 {
-            t.update_at_level(&[], -29.0, &mut out);
+            t.update_at(&[], -29.0, None, &mut out);
         }
         assert_eq!(out.len(), 1, "a masked track lives on");
         assert_eq!(out[0].track_id, id);
@@ -596,7 +625,7 @@ mod tests {
         // Unknown levels mask nothing: after 0.3 s of them the track is past
         // its audible silence, and it dies (silent beyond max_coast_s).
         for _ in 0..40 {
-            t.update_at_level(&[], f64::NAN, &mut out);
+            t.update_at(&[], f64::NAN, None, &mut out);
         }
         assert!(out.is_empty(), "{out:?}");
     }

@@ -197,8 +197,6 @@ pub struct Pipeline {
     doa_sigma_floor_rad: f64,
     /// Longest silence of a reported track, s (see [`TrackerConfig::report_max_silence_s`]).
     report_max_silence_s: f64,
-    /// Longest silence of a reported track that was masked through it, s.
-    masked_report_max_silence_s: f64,
     /// The array's orientation on the base.
     base_from_array: UnitQuaternion<f64>,
     /// The array's orientation in the map that the tracks are expressed in
@@ -208,10 +206,6 @@ pub struct Pipeline {
     rotation_deadband_rad: f64,
     /// The base's position in the map at the current hop (from SLAM), if given.
     base_position: Option<Point3<f64>>,
-    /// Where the base was at each track's last detection: (track id, position).
-    heard_at: Vec<(u64, Option<Point3<f64>>)>,
-    /// See [`TrackerConfig::masked_max_travel_m`].
-    masked_max_travel_m: f64,
 }
 
 impl Pipeline {
@@ -264,13 +258,10 @@ impl Pipeline {
             doa_sigma_floor_rad: floor.to_radians()
                 * aperture_scale(array.aperture_m(), config.doa_sigma_floor_full_aperture_m),
             report_max_silence_s: config.tracker.report_max_silence_s,
-            masked_report_max_silence_s: config.tracker.masked_report_max_silence_s,
             base_from_array: array.base_from_array.rotation,
             tracks_frame: None,
             rotation_deadband_rad: config.tracker.rotation_deadband_deg.to_radians(),
             base_position: None,
-            heard_at: Vec::with_capacity(config.tracker.max_tracks),
-            masked_max_travel_m: config.tracker.masked_max_travel_m,
         })
     }
 
@@ -371,33 +362,12 @@ impl Pipeline {
         if self.stft.push_hop(interleaved) {
             self.srp.process(self.stft.spectra(), &mut r.potentials);
             let level_db = self.srp.band_level_db(self.stft.spectra());
-            self.tracker.update_at_level(&r.potentials, level_db, &mut r.tracks);
+            self.tracker.update_at(&r.potentials, level_db, self.base_position, &mut r.tracks);
             r.reported.clear();
-            // Where the base was when each track was last heard.
-            let tracks = &r.tracks;
-            self.heard_at.retain(|(id, _)| tracks.iter().any(|t| t.track_id == *id));
-            for t in tracks.iter().filter(|t| t.silent_s == 0.0) {
-                let room = self.heard_at.len() < self.heard_at.capacity();
-                match self.heard_at.iter_mut().find(|(id, _)| *id == t.track_id) {
-                    Some(e) => e.1 = self.base_position,
-                    None if room => self.heard_at.push((t.track_id, self.base_position)),
-                    None => {}
-                }
-            }
-            let (audible, masked) = (self.report_max_silence_s, self.masked_report_max_silence_s);
-            let (heard_at, now, max_travel) = (&self.heard_at, self.base_position, self.masked_max_travel_m);
-            let stayed = |id: u64| {
-                let then = heard_at.iter().find(|(i, _)| *i == id).and_then(|e| e.1);
-                match (now, then) {
-                    (Some(now), Some(then)) => (now - then).norm() <= max_travel,
-                    _ => true,
-                }
-            };
-            r.reported.extend((0..tracks.len()).filter(|&i| {
-                let t = &tracks[i];
-                t.confirmed
-                    && (t.silent_s <= audible
-                        || (t.silent_s <= masked && t.audible_silent_s <= audible && stayed(t.track_id)))
+            let audible = self.report_max_silence_s;
+            r.reported.extend((0..r.tracks.len()).filter(|&i| {
+                let t = &r.tracks[i];
+                t.confirmed && (t.silent_s <= audible || t.held_by_masking)
             }));
             let tracks = &r.tracks;
             r.reported.sort_unstable_by(|&a, &b| {
@@ -446,7 +416,6 @@ impl Pipeline {
     pub fn reset(&mut self) {
         self.stft.reset();
         self.tracker.reset();
-        self.heard_at.clear();
         self.tracks_frame = None;
         self.signatures.reset();
         self.result.potentials.clear();

@@ -543,6 +543,7 @@ mod tests {
             confirmed: true,
             silent_s: 0.0,
             audible_silent_s: 0.0,
+            held_by_masking: false,
             coherence: 0.5,
         };
         let mut out = Vec::new();
@@ -576,6 +577,7 @@ mod tests {
             confirmed: true,
             silent_s: 0.0,
             audible_silent_s: 0.0,
+            held_by_masking: false,
             coherence: 0.5,
         };
         let tracks = [track(5), track(9)];
