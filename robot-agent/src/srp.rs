@@ -104,6 +104,14 @@ pub struct SrpConfig {
     pub near_field: bool,
     /// Nearest range the near-field refinement considers, m (default 0.5).
     pub near_field_min_range_m: f64,
+    /// How much of the diffuse field's expected steered power the
+    /// refinement subtracts, in `0..=2` (0, the default: none; 1: the share
+    /// the peak's coherence implies). Experimental: it takes the reverberant
+    /// elevation bias of small arrays down by half (ReSpeaker 6, RT60 0.65 s:
+    /// +12.7° → +5.6° at the median) but makes the several-source scenarios
+    /// worse, where another source's energy is counted as diffuse (see
+    /// [`diffuse::DiffusePower`] and `BENCHMARKS.md`, "Diffuse compensation").
+    pub diffuse_compensation: f64,
     /// Peaks whose grid coherence is below this are noise for every
     /// practical purpose: they are reported at grid resolution, unrefined.
     pub refine_min_coherence: f64,
@@ -130,6 +138,7 @@ impl Default for SrpConfig {
             refine_iterations: 6,
             near_field: false,
             near_field_min_range_m: 0.5,
+            diffuse_compensation: 0.0,
             refine_min_coherence: 0.05,
             max_sources: 2,
             min_separation_deg: 15.0,
@@ -275,7 +284,14 @@ impl Srp {
         }
         let band = Band { lo, hi };
         let cc = CrossCorrelator::new(m, frame_len, band, radius, tables.windows.clone());
-        let refiner = Refiner::new(&positions, c, fs, frame_len, lo, band.len());
+        let compensation = config.diffuse_compensation;
+        if !(compensation.is_finite() && (0.0..=2.0).contains(&compensation)) {
+            return Err(bad("diffuse_compensation", format!("must be in 0..=2, got {compensation}")));
+        }
+        let mut refiner = Refiner::new(&positions, c, fs, frame_len, lo, band.len());
+        if compensation > 0.0 {
+            refiner = refiner.with_diffuse_power();
+        }
         let (normal, _) = array.best_fit_plane();
         let fine_spacing = grid::SphereGrid::icosphere(config.fine_level).mean_spacing_rad();
         let pair_dist: Vec<f64> =
@@ -480,6 +496,21 @@ impl Srp {
     ) -> (Unit<Vector3<f64>>, f64, f64) {
         self.set_gains(&start);
         let iterations = self.config.refine_iterations;
+        // The diffuse field's share of the whitened spectra, from the peak's
+        // coherence C = (1 − β) + β·D̄(d): β = (1 − C)/(1 − D̄(d)).
+        let e0: f64 = self.gains.iter().zip(&self.cc.phat_energy).map(|(&g, &e)| (g * g * e) as f64).sum();
+        let (s1, s2) =
+            self.gains.iter().fold((0.0f64, 0.0f64), |(a, b), &g| (a + g as f64, b + (g * g) as f64));
+        let k = self.cc.band.len() as f64;
+        let mean_energy = e0 / (s2 * k).max(1e-30);
+        let strength = self.config.diffuse_compensation;
+        self.refiner.diffuse_weight = if strength > 0.0 {
+            let dbar = self.diffuse.at(&start);
+            let beta = ((1.0 - grid_coherence) / (1.0 - dbar).max(1e-3)).clamp(0.0, 1.0);
+            strength * beta * mean_energy
+        } else {
+            0.0
+        };
         let wavefront = if self.config.near_field && grid_coherence >= NEAR_FIELD_MIN_COHERENCE {
             Wavefront::Spherical { max_inverse_range_per_m: 1.0 / self.config.near_field_min_range_m }
         } else {
@@ -518,13 +549,9 @@ impl Srp {
         let d = self.region.clamp(d);
         // Normalized so that a plane wave carrying all the (remaining) energy
         // scores 1: (P − E₀) / (((Σg)² − Σg²) · ē · K), ē the mean energy per
-        // microphone and bin (1 before any projection).
-        let e0: f64 = self.gains.iter().zip(&self.cc.phat_energy).map(|(&g, &e)| (g * g * e) as f64).sum();
-        let (s1, s2) =
-            self.gains.iter().fold((0.0f64, 0.0f64), |(a, b), &g| (a + g as f64, b + (g * g) as f64));
-        let k = self.cc.band.len() as f64;
-        let mean_energy = e0 / (s2 * k).max(1e-30);
-        let coherence = (local.power - e0) / ((s1 * s1 - s2) * mean_energy * k).max(1e-30);
+        // microphone and bin (1 before any projection). The power counts the
+        // diffuse part again: the tracker's thresholds are on the raw coherence.
+        let coherence = (local.power + local.diffuse - e0) / ((s1 * s1 - s2) * mean_energy * k).max(1e-30);
         (d, coherence, kappa)
     }
 

@@ -235,10 +235,16 @@ pub struct SourcesConfig {
     /// No source is born within this distance of a live one (m): rays there that
     /// no source claimed are taken as that source's outliers.
     pub exclusion_radius_m: f64,
+    /// A candidate of two robots' rays alone is not born while a third robot
+    /// that hears something, no farther from it than this × the farther of
+    /// the two, has no ray towards it (0: off). See the sound map's docs,
+    /// "Unheard candidates".
+    pub unheard_range_ratio: f64,
 }
 
 impl Default for SourcesConfig {
-    /// One source; for several: 3 birth rounds, 1 m reuse radius, 120 s memory, 0.5 m exclusion.
+    /// One source; for several: 3 birth rounds, 1 m reuse radius, 120 s memory, 0.5 m exclusion,
+    /// unheard candidates vetoed at range ratio 1.
     fn default() -> Self {
         SourcesConfig {
             max_sources: 1,
@@ -246,6 +252,7 @@ impl Default for SourcesConfig {
             reuse_radius_m: 1.0,
             memory_s: 120.0,
             exclusion_radius_m: 0.5,
+            unheard_range_ratio: 1.0,
         }
     }
 }
@@ -266,6 +273,7 @@ impl SourcesConfig {
             ("reuse_radius_m", self.reuse_radius_m),
             ("memory_s", self.memory_s),
             ("exclusion_radius_m", self.exclusion_radius_m),
+            ("unheard_range_ratio", self.unheard_range_ratio),
         ] {
             if !(v.is_finite() && (0.0..=1e6).contains(&v)) {
                 return Err(bad(field, v, "[0, 1e6]"));

@@ -277,3 +277,39 @@ fn rays_that_meet_but_hear_different_things_make_no_source() {
     assert_eq!(births(false), 1, "without signatures the meeting point is taken for a source");
     assert_eq!(births(true), 0, "a fan and a talker are not one source");
 }
+
+/// Two robots' rays at two different sources meet at a point where there is
+/// nothing: a third robot nearer to that point, which hears a source of its
+/// own and nothing there, keeps the point from being born (negative
+/// information); with `sources.unheard_range_ratio = 0` it is born, a ghost.
+#[test]
+fn a_nearer_robot_that_hears_nothing_there_keeps_a_ghost_from_being_born() {
+    let ghost = Point3::new(0.0, 0.0, 1.2);
+    let bases = [Point3::new(-3.0, 0.0, 0.0), Point3::new(0.0, -3.0, 0.0), Point3::new(1.5, 1.5, 0.0)];
+    // Sources on the first two robots' lines through the ghost, beyond it,
+    // and a third source that only the third robot hears.
+    let beyond = |base: Point3<f64>| {
+        let array = base + nalgebra::Vector3::new(0.0, 0.0, 0.48);
+        array + (ghost - array) * 1.5
+    };
+    let (s1, s2, s3) = (beyond(bases[0]), beyond(bases[1]), Point3::new(3.0, 3.0, 1.0));
+    let heard = move |i: usize, _t: f64| match i {
+        0 => vec![(1, s1)],
+        1 => vec![(2, s2)],
+        _ => vec![(3, s3)],
+    };
+    let mut published = Vec::new();
+    for ratio in [1.0, 0.0] {
+        let mut config = several();
+        config.sources.unheard_range_ratio = ratio;
+        let mut c = Coordinator::new(config).unwrap();
+        let mut rs = robots(&mut c, &bases);
+        let est = run(&mut c, &mut rs, 0.0, 4.0, heard);
+        let near_ghost =
+            est.iter().filter(|(_, e)| e.position().is_some_and(|p| (p - ghost).norm() < 0.3)).count();
+        published.push((est.len(), near_ghost));
+    }
+    println!("(estimates, at the ghost) with the veto / without: {published:?}");
+    assert_eq!(published[0], (0, 0), "the veto let something be born");
+    assert!(published[1].1 > 0, "without the veto the ghost should be born: {published:?}");
+}

@@ -469,7 +469,11 @@ fn robot_in_a_corner_hears_the_source_and_not_the_noise() {
 fn error_parts_sweep() {
     use soundmap_server::floor_image::{FloorFold, array_pattern};
     use std::f64::consts::{PI, TAU};
-    let config = PipelineConfig::default();
+    let mut config = PipelineConfig::default();
+    // `SOUNDMAP_DIFFUSE_COMPENSATION=1` measures `[srp] diffuse_compensation`.
+    if let Ok(v) = std::env::var("SOUNDMAP_DIFFUSE_COMPENSATION") {
+        config.srp.diffuse_compensation = v.parse().expect("SOUNDMAP_DIFFUSE_COMPENSATION: a number");
+    }
     println!(
         "{:<24} {:>6} {:>15} {:>15} {:>17} {:>17}",
         "preset", "RT60", "whole", "horizontal", "elevation", "vs model"

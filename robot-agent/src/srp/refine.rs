@@ -61,6 +61,9 @@ pub struct Local {
     pub grad: [f64; 3],
     /// ∂²/∂(u, v, t)² (symmetric: `[uu, uv, vv, ut, vt, tt]`).
     pub hess: [f64; 6],
+    /// The diffuse field's expected power subtracted from `power` (0 unless
+    /// the refiner's `diffuse_weight` is set).
+    pub diffuse: f64,
 }
 
 /// The wavefront a refinement assumes: plane, or spherical with its inverse
@@ -102,6 +105,10 @@ pub struct Refiner {
     ph: Vec<f32>,
     /// Beamformer evaluations since the counter was last read.
     pub(super) evaluations: usize,
+    /// The diffuse field's part of the power, and how much of it each
+    /// evaluation subtracts (0: none; see [`Local::diffuse`]).
+    diffuse: Option<super::diffuse::DiffusePower>,
+    pub(super) diffuse_weight: f64,
     /// The CPU's vector instructions (see [`crate::simd`]).
     pub(super) arch: pulp::Arch,
 }
@@ -139,8 +146,20 @@ impl Refiner {
             yi: vec![0.0; padded],
             ph: vec![0.0; 2 * positions.len() * padded],
             evaluations: 0,
+            diffuse: None,
+            diffuse_weight: 0.0,
             arch: pulp::Arch::new(),
         }
+    }
+
+    /// Tabulates the diffuse field's power (see [`super::diffuse::DiffusePower`])
+    /// so that `diffuse_weight` can subtract it.
+    pub fn with_diffuse_power(mut self) -> Self {
+        let c = 1.0 / self.inv_c;
+        let power =
+            super::diffuse::DiffusePower::new(&self.positions, self.domega, self.first_bin, self.bins, c);
+        self.diffuse = Some(power);
+        self
     }
 
     /// Writes `Y[k] = X̃ᵢ[k] e^{−jωₖ a}` of microphone `i` to `yr`/`yi`, and
@@ -228,8 +247,25 @@ impl Refiner {
     ///
     /// With `at.curvature = false` the coordinates are linear, `d + u e₁ + v e₂`
     /// (used for planar arrays, whose delays only see the in-plane part of `d`).
+    ///
+    /// With a `diffuse_weight` w > 0, `w·D` (the diffuse field's expected
+    /// part, see [`super::diffuse::DiffusePower`]) is subtracted from the
+    /// power and its derivatives, and kept in [`Local::diffuse`].
     pub fn local(&mut self, cc: &CrossCorrelator, gains: &[f32], at: At<'_>) -> Local {
-        crate::simd::run(self.arch, Evaluate { refiner: self, cc, gains, at })
+        let (d, e1, e2, curvature) = (at.d, at.e1, at.e2, at.curvature);
+        let mut local = crate::simd::run(self.arch, Evaluate { refiner: self, cc, gains, at });
+        let w = self.diffuse_weight;
+        if let Some(diffuse) = self.diffuse.as_ref().filter(|_| w > 0.0) {
+            let dl = diffuse.local(d, e1, e2, curvature, gains);
+            local.diffuse = w * dl.value;
+            local.power -= local.diffuse;
+            local.grad[0] -= w * dl.grad[0];
+            local.grad[1] -= w * dl.grad[1];
+            local.hess[0] -= w * dl.hess[0];
+            local.hess[1] -= w * dl.hess[1];
+            local.hess[2] -= w * dl.hess[2];
+        }
+        local
     }
 
     #[inline(always)]
@@ -279,6 +315,7 @@ impl Refiner {
             power: v[0],
             grad: [2.0 * v[1], 2.0 * v[2], 2.0 * v[6]],
             hess: [2.0 * v[3], 2.0 * v[4], 2.0 * v[5], 2.0 * v[7], 2.0 * v[8], 2.0 * v[9]],
+            diffuse: 0.0,
         }
     }
 

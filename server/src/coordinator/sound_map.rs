@@ -132,6 +132,10 @@ const MIN_SIGNATURE_SIMILARITY: f64 = 0.3;
 /// [`crate::association`]).
 const SILENT_NS: i64 = 500_000_000;
 
+/// Azimuth slack beyond 3 σ within which a third robot's ray counts as
+/// pointing at a candidate (rad, 3°): rooms bias azimuths by about a degree.
+const UNHEARD_SLACK_RAD: f64 = 0.052;
+
 /// Labels not refreshed for this long are forgotten (ns).
 const LABEL_TTL_NS: i64 = 5_000_000_000;
 
@@ -197,6 +201,18 @@ impl SoundMap {
     /// filters overconfident.
     pub fn push(&mut self, stamp: Stamp, robot: u32, rays: Vec<TaggedRay>) {
         self.queue.note_stamp(robot, stamp);
+        for t in &rays {
+            let d = t.ray.direction_in_map;
+            tracing::trace!(
+                robot,
+                at_ns = stamp.as_ns(),
+                track = t.track_id,
+                azimuth_deg = d.y.atan2(d.x).to_degrees(),
+                elevation_deg = d.z.asin().to_degrees(),
+                sigma_deg = t.ray.sigma_rad.to_degrees(),
+                "ray"
+            );
+        }
         if !rays.is_empty() {
             self.queue.push(stamp, robot, rays);
         }
@@ -341,6 +357,9 @@ impl SoundMap {
                     continue;
                 }
                 let Some((keys, tri, newest)) = self.candidate(a, b, &free, config) else { continue };
+                if keys.len() == 2 && self.unheard(&tri, &keys, aligned) {
+                    continue;
+                }
                 let bonus = similarity.map_or(0.0, |s| self.gate * s);
                 scores.push(2.0 * self.gate * keys.len() as f64 - tri_chi2(&tri) + bonus);
                 members.push(keys);
@@ -417,6 +436,39 @@ impl SoundMap {
         }
         keys.sort();
         Some((keys, tri, newest))
+    }
+
+    /// Whether a robot other than the candidate's, hearing something and no
+    /// farther from the candidate than `unheard_range_ratio` × the farther of
+    /// its robots, has no ray towards it (see the module docs).
+    fn unheard(&self, tri: &Triangulation, keys: &[TrackKey], aligned: &[AlignedRays]) -> bool {
+        let ratio = self.config.unheard_range_ratio;
+        let Some(point) = tri.solution().map(|s| s.source_in_map) else { return false };
+        if ratio <= 0.0 {
+            return false;
+        }
+        let origin = |robot: u32| {
+            aligned
+                .iter()
+                .find(|a| a.robot == robot)
+                .and_then(|a| a.rays.first())
+                .map(|t| t.ray.origin_in_map)
+        };
+        let reach = keys
+            .iter()
+            .filter_map(|&(robot, _)| origin(robot))
+            .map(|o| horizontal(point - o).norm())
+            .fold(0.0, f64::max);
+        aligned.iter().filter(|a| keys.iter().all(|k| k.0 != a.robot)).any(|a| {
+            let Some(o) = a.rays.first().map(|t| t.ray.origin_in_map) else { return false };
+            let to = horizontal(point - o);
+            let near = to.norm() <= ratio * reach;
+            near && a.rays.iter().all(|t| {
+                let d = horizontal(t.ray.direction_in_map.into_inner());
+                let angle = to.angle(&d);
+                angle > 3.0 * t.ray.sigma_rad + UNHEARD_SLACK_RAD
+            })
+        })
     }
 
     fn birth(&mut self, now: Stamp, newest: Stamp, tri: &Triangulation, keys: &[(u32, u64)]) {
@@ -593,6 +645,11 @@ fn usable(t: &Triangulation, config: &TriangulationConfig) -> Option<Point3<f64>
         Gate::Rejected(_) => false,
     };
     ok.then_some(s.source_in_map)
+}
+
+/// The horizontal part of a map-frame vector.
+fn horizontal(v: nalgebra::Vector3<f64>) -> nalgebra::Vector2<f64> {
+    nalgebra::Vector2::new(v.x, v.y)
 }
 
 fn tri_chi2(t: &Triangulation) -> f64 {
