@@ -22,6 +22,22 @@
 //!    remembered as *labels* (robot, local track) → source. A track without a
 //!    label is never given to a silent source (see [`crate::association`]).
 //!
+//! **Unheard candidates** (negative information). Two robots' rays aimed at
+//! two different sources can meet where nothing is; a third robot can say
+//! so. A candidate of two robots' rays alone is not born while a third robot
+//! that hears something (at least one track in its aligned observation) and
+//! is no farther from the candidate, horizontally, than
+//! `sources.unheard_range_ratio` × the farther of the two has no ray within
+//! 3σ + 3° of it in azimuth (azimuth only: small planar arrays read
+//! elevation 10–25° high in reverberant rooms). A robot that hears nothing
+//! at all vetoes nothing (it may be deaf, near a wall). Worked case
+//! (`cocktail` seed 5, after talker 0 stops): the ReSpeaker's ray toward the
+//! fan and the TurtleBot's toward talker 1 meet at (0.08, 0.37, 1.31), 1.9
+//! and 2.4 m from them; the Pioneer, 2.0 m from it, hears talker 1 (80°) and
+//! the fan (−48°) and nothing at 45°, so the ghost is not born. The cost: a
+//! source that the nearest robot does not hear (masked, or behind it) waits
+//! until that robot hears it or a farther pair confirms it.
+//!
 //! A source's track is lost after `single_robot_timeout_s` of rays from one
 //! robot alone; a silence before that robot's rays does not count (a talker
 //! heard again first by one robot after a pause is not a track being dragged).
