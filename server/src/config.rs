@@ -236,15 +236,15 @@ pub struct SourcesConfig {
     /// no source claimed are taken as that source's outliers.
     pub exclusion_radius_m: f64,
     /// A candidate of two robots' rays alone is not born while a third robot
-    /// that hears something, no farther from it than this × the farther of
-    /// the two, has no ray towards it (0: off). See the sound map's docs,
-    /// "Unheard candidates".
+    /// that hears something, with an array no smaller than both of theirs and
+    /// no farther from it than this × the farther of the two, has no ray
+    /// towards it (0: off). See the sound map's docs, "Unheard candidates".
     pub unheard_range_ratio: f64,
 }
 
 impl Default for SourcesConfig {
     /// One source; for several: 3 birth rounds, 1 m reuse radius, 120 s memory, 0.5 m exclusion,
-    /// unheard candidates vetoed at range ratio 1.
+    /// unheard candidates vetoed at range ratio 1.5.
     fn default() -> Self {
         SourcesConfig {
             max_sources: 1,
@@ -252,7 +252,7 @@ impl Default for SourcesConfig {
             reuse_radius_m: 1.0,
             memory_s: 120.0,
             exclusion_radius_m: 0.5,
-            unheard_range_ratio: 1.0,
+            unheard_range_ratio: 1.5,
         }
     }
 }

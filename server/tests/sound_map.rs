@@ -281,7 +281,8 @@ fn rays_that_meet_but_hear_different_things_make_no_source() {
 /// Two robots' rays at two different sources meet at a point where there is
 /// nothing: a third robot nearer to that point, which hears a source of its
 /// own and nothing there, keeps the point from being born (negative
-/// information); with `sources.unheard_range_ratio = 0` it is born, a ghost.
+/// information); with `sources.unheard_range_ratio = 0`, or when the third
+/// robot's array is smaller than the pair's, it is born, a ghost.
 #[test]
 fn a_nearer_robot_that_hears_nothing_there_keeps_a_ghost_from_being_born() {
     let ghost = Point3::new(0.0, 0.0, 1.2);
@@ -298,18 +299,40 @@ fn a_nearer_robot_that_hears_nothing_there_keeps_a_ghost_from_being_born() {
         1 => vec![(2, s2)],
         _ => vec![(3, s3)],
     };
+    // 16 microphones on a circle of radius r (aperture 2r).
+    let ring = |r: f64| -> Vec<Point3<f64>> {
+        (0..16)
+            .map(|k| {
+                let a = k as f64 * std::f64::consts::TAU / 16.0;
+                Point3::new(r * a.cos(), r * a.sin(), 0.0)
+            })
+            .collect()
+    };
     let mut published = Vec::new();
-    for ratio in [1.0, 0.0] {
+    // (ratio, the third robot's array radius): the default; off; the third
+    // robot's array smaller than the pair's (it hears later and less, so its
+    // silence says less).
+    for (ratio, third_radius) in [(1.5, 0.18), (0.0, 0.18), (1.5, 0.045)] {
         let mut config = several();
         config.sources.unheard_range_ratio = ratio;
         let mut c = Coordinator::new(config).unwrap();
-        let mut rs = robots(&mut c, &bases);
+        let mut rs: Vec<Robot> = bases
+            .iter()
+            .enumerate()
+            .map(|(i, &base)| {
+                let mut h = hello(&format!("r{i}"));
+                h.array.microphone_positions = ring(if i == 2 { third_radius } else { 0.18 });
+                let conn = c.connect(T0, h, None).unwrap().conn;
+                Robot { conn, base, sequence: 0 }
+            })
+            .collect();
         let est = run(&mut c, &mut rs, 0.0, 4.0, heard);
         let near_ghost =
             est.iter().filter(|(_, e)| e.position().is_some_and(|p| (p - ghost).norm() < 0.3)).count();
         published.push((est.len(), near_ghost));
     }
-    println!("(estimates, at the ghost) with the veto / without: {published:?}");
+    println!("(estimates, at the ghost) with the veto / without / from a smaller array: {published:?}");
     assert_eq!(published[0], (0, 0), "the veto let something be born");
     assert!(published[1].1 > 0, "without the veto the ghost should be born: {published:?}");
+    assert!(published[2].1 > 0, "a smaller array's silence should not veto: {published:?}");
 }

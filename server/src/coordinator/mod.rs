@@ -315,6 +315,7 @@ impl Coordinator {
             - obs.map_from_base.translation.z
             + base_height_m;
         let edges = entry.hello.signature_bands.as_deref();
+        let aperture_m = entry.aperture_m;
         let declared = entry.hello.array.srp_band_hz;
         let rays = obs
             .doas
@@ -358,6 +359,7 @@ impl Coordinator {
                     activity: d.activity,
                     track_id: d.track_id,
                     signature: d.signature.as_deref().map(std::sync::Arc::from),
+                    aperture_m,
                 }
             })
             .collect::<Vec<_>>();

@@ -32,6 +32,9 @@ pub struct TaggedRay {
     pub track_id: u64,
     /// The track's spectral signature (dB per band), when the robot sends one.
     pub signature: Option<std::sync::Arc<[f32]>>,
+    /// The aperture of the robot's array (m: the largest distance between
+    /// two of its microphones), when its hello gives their positions.
+    pub aperture_m: Option<f64>,
 }
 
 /// One observation kept for alignment: the robot's rays at a stamp.
@@ -82,11 +85,20 @@ pub struct RobotEntry {
     /// Its array's floor-image pattern, once looked up (`Some(None)`: the array
     /// is not planar, or its hello declares no microphone positions or SRP band).
     pub pattern: Option<Option<&'static ArrayPattern>>,
+    /// Its array's aperture (m), when its hello gives the microphone positions.
+    pub aperture_m: Option<f64>,
 }
 
 impl RobotEntry {
     /// A robot that just said hello on `conn`; `index` numbers it.
     pub fn new(hello: Hello, index: u32, conn: ConnId, now: Stamp) -> Self {
+        let mics = &hello.array.microphone_positions;
+        let aperture_m = (mics.len() >= 2).then(|| {
+            mics.iter()
+                .enumerate()
+                .flat_map(|(i, a)| mics[i + 1..].iter().map(move |b| (a - b).norm()))
+                .fold(0.0, f64::max)
+        });
         RobotEntry {
             hello,
             index,
@@ -101,6 +113,7 @@ impl RobotEntry {
             rejected: 0,
             commands: CommandLog::default(),
             pattern: None,
+            aperture_m,
         }
     }
 

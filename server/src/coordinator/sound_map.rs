@@ -25,18 +25,29 @@
 //! **Unheard candidates** (negative information). Two robots' rays aimed at
 //! two different sources can meet where nothing is; a third robot can say
 //! so. A candidate of two robots' rays alone is not born while a third robot
-//! that hears something (at least one track in its aligned observation) and
-//! is no farther from the candidate, horizontally, than
-//! `sources.unheard_range_ratio` × the farther of the two has no ray within
-//! 3σ + 3° of it in azimuth (azimuth only: small planar arrays read
-//! elevation 10–25° high in reverberant rooms). A robot that hears nothing
-//! at all vetoes nothing (it may be deaf, near a wall). Worked case
-//! (`cocktail` seed 5, after talker 0 stops): the ReSpeaker's ray toward the
-//! fan and the TurtleBot's toward talker 1 meet at (0.08, 0.37, 1.31), 1.9
-//! and 2.4 m from them; the Pioneer, 2.0 m from it, hears talker 1 (80°) and
-//! the fan (−48°) and nothing at 45°, so the ghost is not born. The cost: a
-//! source that the nearest robot does not hear (masked, or behind it) waits
-//! until that robot hears it or a farther pair confirms it.
+//! that hears something (at least one track in its aligned observation),
+//! whose array is no smaller than both of theirs, and that is no farther from
+//! the candidate, horizontally, than `sources.unheard_range_ratio` (1.5) ×
+//! the farther of the two, has no ray within 3σ + 3° of it in azimuth
+//! (azimuth only: small planar arrays read elevation 10–25° high in
+//! reverberant rooms). By spherical spreading a source 1.5× farther is heard
+//! 3.5 dB weaker: a robot that hears the room hears it. A robot that hears
+//! nothing at all vetoes nothing (it may be deaf, near a wall), and neither
+//! does a smaller array than the pair's: it confirms later and less (a 9 cm
+//! ReSpeaker 6 confirmed a talker 0.2–2.8 s after two 16-microphone arrays in
+//! `cocktail-active`, its birth threshold sitting above the diffuse field's
+//! coherence at its zenith), so its silence is weak evidence. Worked cases
+//! (`cocktail`): seed 5, after talker 0 stops, the ReSpeaker's ray toward the
+//! fan and the TurtleBot's toward talker 1 meet at (0.08, 0.37, 1.31), 2.4 and
+//! 1.8 m from them; the Pioneer, 2.0 m from it, hears talker 1 (80°) and the
+//! fan (−48°) and nothing at 45°, so the ghost is not born. Seed 10, talker 0
+//! speaking again after a pause: the ReSpeaker's track, dragged 10° toward
+//! the fan meanwhile, and the TurtleBot's meet 0.5 m from the talker; the
+//! Pioneer, 2.7 m from that point (1.14 × the TurtleBot's 2.37 m), has no ray
+//! there; once its own track of the talker appears the talker is born where
+//! it is (RSE median 0.12 m from 30 s on, against 0.5–0.8 m without the veto). The cost: a source the nearest large array does not hear
+//! (masked, or just starting) waits until it does or a farther pair confirms
+//! it.
 //!
 //! A source's track is lost after `single_robot_timeout_s` of rays from one
 //! robot alone; a silence before that robot's rays does not count (a talker
@@ -373,7 +384,16 @@ impl SoundMap {
                     continue;
                 }
                 let Some((keys, tri, newest)) = self.candidate(a, b, &free, config) else { continue };
-                if keys.len() == 2 && self.unheard(&tri, &keys, aligned) {
+                let unheard = if keys.len() == 2 { self.unheard(&tri, &keys, aligned) } else { None };
+                if let Some((robot, p)) = unheard {
+                    tracing::debug!(
+                        at_ns = a.stamp.as_ns(),
+                        robot,
+                        x = p.x,
+                        y = p.y,
+                        z = p.z,
+                        "unheard candidate"
+                    );
                     continue;
                 }
                 let bonus = similarity.map_or(0.0, |s| self.gate * s);
@@ -454,37 +474,48 @@ impl SoundMap {
         Some((keys, tri, newest))
     }
 
-    /// Whether a robot other than the candidate's, hearing something and no
-    /// farther from the candidate than `unheard_range_ratio` × the farther of
-    /// its robots, has no ray towards it (see the module docs).
-    fn unheard(&self, tri: &Triangulation, keys: &[TrackKey], aligned: &[AlignedRays]) -> bool {
+    /// A robot other than the candidate's, hearing something, with an array
+    /// no smaller than theirs and no farther from the candidate than
+    /// `unheard_range_ratio` × the farther of its robots, that has no ray
+    /// towards it, if there is one, with the candidate's point (see the
+    /// module docs).
+    fn unheard(
+        &self,
+        tri: &Triangulation,
+        keys: &[TrackKey],
+        aligned: &[AlignedRays],
+    ) -> Option<(u32, Point3<f64>)> {
         let ratio = self.config.unheard_range_ratio;
-        let Some(point) = tri.solution().map(|s| s.source_in_map) else { return false };
+        let point = tri.solution().map(|s| s.source_in_map)?;
         if ratio <= 0.0 {
-            return false;
+            return None;
         }
-        let origin = |robot: u32| {
-            aligned
-                .iter()
-                .find(|a| a.robot == robot)
-                .and_then(|a| a.rays.first())
-                .map(|t| t.ray.origin_in_map)
-        };
+        let first = |robot: u32| aligned.iter().find(|a| a.robot == robot).and_then(|a| a.rays.first());
         let reach = keys
             .iter()
-            .filter_map(|&(robot, _)| origin(robot))
-            .map(|o| horizontal(point - o).norm())
+            .filter_map(|&(robot, _)| first(robot))
+            .map(|t| horizontal(point - t.ray.origin_in_map).norm())
             .fold(0.0, f64::max);
-        aligned.iter().filter(|a| keys.iter().all(|k| k.0 != a.robot)).any(|a| {
-            let Some(o) = a.rays.first().map(|t| t.ray.origin_in_map) else { return false };
-            let to = horizontal(point - o);
+        // The smaller of the two arrays, when both are known.
+        let smallest = keys
+            .iter()
+            .map(|&(robot, _)| first(robot).and_then(|t| t.aperture_m))
+            .try_fold(f64::INFINITY, |m, a| a.map(|a| m.min(a)));
+        let unheard_by = aligned.iter().filter(|a| keys.iter().all(|k| k.0 != a.robot)).find(|a| {
+            let Some(t0) = a.rays.first() else { return false };
+            // A smaller array than both of the pair's hears later and less.
+            if t0.aperture_m.zip(smallest).is_some_and(|(own, pair)| own < pair) {
+                return false;
+            }
+            let to = horizontal(point - t0.ray.origin_in_map);
             let near = to.norm() <= ratio * reach;
             near && a.rays.iter().all(|t| {
                 let d = horizontal(t.ray.direction_in_map.into_inner());
                 let angle = to.angle(&d);
                 angle > 3.0 * t.ray.sigma_rad + UNHEARD_SLACK_RAD
             })
-        })
+        });
+        unheard_by.map(|a| (a.robot, point))
     }
 
     fn birth(&mut self, now: Stamp, newest: Stamp, tri: &Triangulation, keys: &[(u32, u64)]) {
