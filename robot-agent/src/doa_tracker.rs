@@ -68,8 +68,9 @@
 //! Only while the robot stays put: once the base has moved more than
 //! [`TrackerConfig::masked_max_travel_m`] (0.1 m) since the track's last
 //! detection (positions from the SLAM poses the pipeline follows), it is no
-//! longer held (`held_by_masking`) and the pipeline stops reporting it (a bearing heard from
-//! elsewhere would make the coordinator's rays meet where nothing is).
+//! longer held (`held_by_masking`) and the pipeline stops reporting it (a
+//! bearing heard from elsewhere would make the coordinator's rays meet where
+//! nothing is).
 //! Why: PHAT coherence is scale-free, so a fan 14 dB below two talkers gives
 //! the same coherence (0.12–0.15 at 2–3 m, RT60 0.5 s) as they do when it is
 //! heard, but it is heard only in their pauses; while both speak its

@@ -45,9 +45,9 @@
 //! the fan meanwhile, and the TurtleBot's meet 0.5 m from the talker; the
 //! Pioneer, 2.7 m from that point (1.14 × the TurtleBot's 2.37 m), has no ray
 //! there; once its own track of the talker appears the talker is born where
-//! it is (RSE median 0.12 m from 30 s on, against 0.5–0.8 m without the veto). The cost: a source the nearest large array does not hear
-//! (masked, or just starting) waits until it does or a farther pair confirms
-//! it.
+//! it is (RSE median 0.12 m from 30 s on, against 0.5–0.8 m without the
+//! veto). The cost: a source the nearest large array does not hear (masked,
+//! or just starting) waits until it does or a farther pair confirms it.
 //!
 //! A source's track is lost after `single_robot_timeout_s` of rays from one
 //! robot alone; a silence before that robot's rays does not count (a talker
