@@ -49,6 +49,26 @@
 //! veto). The cost: a source the nearest large array does not hear (masked,
 //! or just starting) waits until it does or a farther pair confirms it.
 //!
+//! **Diverged filters.** A planar array cannot tell a source above its plane
+//! from its mirror image below it (see [`crate::floor_image`]): both give the
+//! same folded DoA. The triangulations take the upper branch, but a filter
+//! that crosses the arrays' plane (pulled down by a floor-image read and
+//! carried on by its velocity) finds every DoA as consistent with the mirror
+//! and stays there. So after each round's updates a source's filter is
+//! compared with the triangulation of its own rays, those whose track fed it
+//! within the last 0.3 s (a track that went over to another source stops
+//! feeding this one, and its stale label must not judge it): when they are
+//! more than 0.3 m apart and beyond the 99.99 % χ² (3 dof) of their summed
+//! covariances in every round for 1 s, the source is restarted from that
+//! triangulation (a new tentative track, the same id). Worked case
+//! (`cocktail` seed 5): the fan at (0.2, −2.7, 0.8), heard by the Pioneer and
+//! the TurtleBot (arrays about 0.5 m up), was read for 1.5 s at 0.2 m (the
+//! floor image); the filter followed it down through the arrays' plane and
+//! sat at −0.2 m, where the folded model (floor and ceiling images included)
+//! explains the DoAs as well as their meeting point at 0.8–1.0 m does: NIS ≈
+//! 0.1 on every DoA. From 31.3 s on the two disagreed; at 32.3 s the fan was
+//! restarted at 1.03 m (run OSPA 0.317 → 0.287 m, ghosts 0.128 → 0.078/s).
+//!
 //! A source's track is lost after `single_robot_timeout_s` of rays from one
 //! robot alone; a silence before that robot's rays does not count (a talker
 //! heard again first by one robot after a pause is not a track being dragged).
@@ -102,6 +122,9 @@ struct MapSource {
     /// filter): its place for id reuse. One robot's rays alone can drag the
     /// filter along that robot's bearing before the source is lost.
     anchor: Option<Point3<f64>>,
+    /// Since when the filter has disagreed with its own rays' triangulation
+    /// in every round (see the module docs, "Diverged filters").
+    diverged_since: Option<Stamp>,
 }
 
 impl MapSource {
@@ -163,6 +186,22 @@ const SILENT_NS: i64 = 500_000_000;
 /// pointing at a candidate (rad, 3°): rooms bias azimuths by about a degree.
 const UNHEARD_SLACK_RAD: f64 = 0.052;
 
+/// A source's filter and its own rays' triangulation further apart than this
+/// χ² (3 dof) quantile of their summed covariances, and than
+/// [`DIVERGED_MIN_M`], disagree.
+const DIVERGED_PROBABILITY: f64 = 0.9999;
+
+/// Only rays whose track fed the source this recently (ns) judge its filter:
+/// a track that has gone over to another source stops feeding it.
+const FRESH_LABEL_NS: i64 = 300_000_000;
+
+/// Disagreements smaller than this (m) are left to the filter.
+const DIVERGED_MIN_M: f64 = 0.3;
+
+/// A source whose filter disagrees with its rays in every round for this long
+/// (ns) is restarted from them.
+const DIVERGED_NS: i64 = 1_000_000_000;
+
 /// Labels not refreshed for this long are forgotten (ns).
 const LABEL_TTL_NS: i64 = 5_000_000_000;
 
@@ -200,6 +239,8 @@ pub struct SoundMap {
     next_id: u64,
     /// Sources born since start.
     pub births: u64,
+    /// Diverged sources restarted from their rays since start.
+    pub restarts: u64,
 }
 
 impl SoundMap {
@@ -218,6 +259,7 @@ impl SoundMap {
             queue,
             next_id: 1,
             births: 0,
+            restarts: 0,
         }
     }
 
@@ -256,6 +298,7 @@ impl SoundMap {
         self.deaths(now);
         self.births(now, aligned, triangulation);
         self.flush(now);
+        self.restarts(aligned, triangulation);
         self.labels.retain(|_, l| now - l.last < LABEL_TTL_NS);
     }
 
@@ -580,7 +623,94 @@ impl SoundMap {
             "source born"
         );
         // Two robots' rays that meet: its place until it is trusted.
-        self.sources.push(MapSource { id, tracker, first_heard, last_heard: newest, anchor: Some(point) });
+        self.sources.push(MapSource {
+            id,
+            tracker,
+            first_heard,
+            last_heard: newest,
+            anchor: Some(point),
+            diverged_since: None,
+        });
+    }
+
+    /// The rays in `aligned` labelled with source `id` (one per robot), their
+    /// robots and newest stamp.
+    fn labelled(&self, id: u64, aligned: &[AlignedRays], fresh_ns: i64) -> (Vec<u32>, Vec<Ray>, Stamp) {
+        let mut robots = Vec::new();
+        let mut rays = Vec::new();
+        let mut newest = Stamp::ZERO;
+        for a in aligned {
+            let labelled = a.rays.iter().find(|t| {
+                self.labels
+                    .get(&(a.robot, t.track_id))
+                    .is_some_and(|l| l.source == id && a.stamp - l.last <= fresh_ns)
+            });
+            if let Some(t) = labelled {
+                robots.push(a.robot);
+                rays.push(t.ray);
+                newest = newest.max(a.stamp);
+            }
+        }
+        (robots, rays, newest)
+    }
+
+    /// Restarts, from its own rays' triangulation, a source whose filter has
+    /// disagreed with that triangulation for [`DIVERGED_NS`] (see the module
+    /// docs, "Diverged filters").
+    fn restarts(&mut self, aligned: &[AlignedRays], config: &TriangulationConfig) {
+        let limit = chi2_quantile(3, DIVERGED_PROBABILITY);
+        let inflation = self.tracker.init_covariance_inflation;
+        for i in 0..self.sources.len() {
+            let (_, rays, newest) = self.labelled(self.sources[i].id, aligned, FRESH_LABEL_NS);
+            if rays.len() < 2 {
+                continue;
+            }
+            let Some(e) = self.sources[i].tracker.predict_to(newest) else { continue };
+            // Rays that each pass near the filter (unfolded) meet near it: no
+            // triangulation needed.
+            let near = rays.iter().all(|r| {
+                let to = e.position_in_map - r.origin_in_map;
+                to.angle(&r.direction_in_map) <= 3.0 * r.sigma_rad + UNHEARD_SLACK_RAD
+            });
+            let s = &mut self.sources[i];
+            if near {
+                s.diverged_since = None;
+                continue;
+            }
+            let tri = triangulate(&rays, config);
+            let Some(solution) = tri.solution().filter(|s| s.gate == Gate::Accepted) else { continue };
+            let Some(covariance) = solution.quality.covariance else { continue };
+            let d = solution.source_in_map - e.position_in_map;
+            let m = (covariance + e.position_covariance())
+                .try_inverse()
+                .map_or(f64::INFINITY, |inv| (d.transpose() * inv * d)[(0, 0)]);
+            if !(m > limit && d.norm() > DIVERGED_MIN_M) {
+                s.diverged_since = None;
+                continue;
+            }
+            let since = *s.diverged_since.get_or_insert(newest);
+            if newest - since < DIVERGED_NS {
+                continue;
+            }
+            let point = solution.source_in_map;
+            if matches!(
+                s.tracker.initialize(newest, point, covariance * inflation),
+                InitOutcome::Started { .. }
+            ) {
+                tracing::debug!(
+                    source = s.id,
+                    at_ns = newest.as_ns(),
+                    x = point.x,
+                    y = point.y,
+                    z = point.z,
+                    off_m = d.norm(),
+                    "diverged source restarted from its rays"
+                );
+                s.anchor = Some(point);
+                s.diverged_since = None;
+                self.restarts += 1;
+            }
+        }
     }
 
     /// What each live source looks like at `stamp`: the aligned rays labelled
@@ -593,20 +723,7 @@ impl SoundMap {
     ) -> Vec<SourceSighting> {
         let mut out = Vec::new();
         for s in &self.sources {
-            let mut robots = Vec::new();
-            let mut rays = Vec::new();
-            let mut newest = Stamp::ZERO;
-            for a in aligned {
-                let labelled = a
-                    .rays
-                    .iter()
-                    .find(|t| self.labels.get(&(a.robot, t.track_id)).is_some_and(|l| l.source == s.id));
-                if let Some(t) = labelled {
-                    robots.push(a.robot);
-                    rays.push(t.ray);
-                    newest = newest.max(a.stamp);
-                }
-            }
+            let (robots, rays, newest) = self.labelled(s.id, aligned, LABEL_TTL_NS);
             if rays.len() < 2 {
                 continue;
             }
@@ -701,4 +818,91 @@ fn horizontal(v: nalgebra::Vector3<f64>) -> nalgebra::Vector2<f64> {
 
 fn tri_chi2(t: &Triangulation) -> f64 {
     t.solution().map_or(f64::INFINITY, |s| s.residual_chi2)
+}
+
+#[cfg(test)]
+mod tests {
+    use nalgebra::{Matrix3, Point3};
+    use soundmap_proto::Stamp;
+
+    use super::{AlignedRays, SoundMap, TaggedRay};
+    use crate::config::SourcesConfig;
+    use crate::floor_image::three_mic_fold;
+    use crate::ray::Ray;
+    use crate::tracking::TrackerConfig;
+    use crate::triangulation::TriangulationConfig;
+
+    /// Two planar arrays 0.5 m above the floor hear a source at 1.2 m; each
+    /// measures it folded onto the upper hemisphere, so its mirror image in
+    /// their plane, at −0.2 m, explains their DoAs exactly as well. A filter
+    /// that has crossed into the mirror (as a floor-image read can push one)
+    /// stays there on the DoAs alone; its own rays' triangulation, which
+    /// takes the upper branch, disagrees, and after a second the source is
+    /// restarted from it, keeping its id.
+    #[test]
+    fn a_filter_stuck_at_the_mirror_image_is_restarted_from_its_rays() {
+        let source = Point3::new(0.0, 0.0, 1.2);
+        let mirror = Point3::new(0.0, 0.0, -0.2);
+        let fold = three_mic_fold(0.0, None);
+        let origins = [Point3::new(-3.0, 0.0, 0.5), Point3::new(0.0, -3.0, 0.5)];
+        let config = SourcesConfig { max_sources: 4, ..SourcesConfig::default() };
+        let mut map = SoundMap::new(config, TrackerConfig::default());
+        let tri = TriangulationConfig::default();
+        let t0 = Stamp::from_ns(1_767_225_600_000_000_000);
+        let ray = |o: Point3<f64>| Ray {
+            origin_in_map: o,
+            direction_in_map: fold.measured_direction(&o, &source).expect("not straight above"),
+            sigma_rad: 1f64.to_radians(),
+            origin_sigma_m: 0.0,
+            fold: Some(fold),
+        };
+        let round = |map: &mut SoundMap, k: i64| {
+            let stamp = t0.plus_ns(k * 50_000_000);
+            let aligned: Vec<AlignedRays> = (0..2u32)
+                .map(|r| AlignedRays {
+                    robot: r,
+                    stamp,
+                    rays: vec![TaggedRay {
+                        ray: ray(origins[r as usize]),
+                        activity: 0.9,
+                        track_id: 1,
+                        signature: None,
+                        aperture_m: Some(0.2),
+                    }],
+                })
+                .collect();
+            for a in &aligned {
+                map.push(a.stamp, a.robot, a.rays.clone());
+            }
+            map.step(stamp.plus_ns(20_000_000), &aligned, &tri);
+            stamp
+        };
+        let position = |map: &SoundMap| {
+            let all: Vec<_> = map.sources().collect();
+            assert_eq!(all.len(), 1, "one source");
+            (all[0].0, all[0].3.expect("an estimate").position_in_map)
+        };
+        for k in 0..40 {
+            round(&mut map, k);
+        }
+        let (id, p) = position(&map);
+        assert!((p - source).norm() < 0.15, "born at {p}");
+        // The filter crosses into the mirror.
+        let stamp = round(&mut map, 40);
+        let s = &mut map.sources[0];
+        s.tracker.initialize(stamp, mirror, Matrix3::identity() * 0.01);
+        for k in 41..51 {
+            round(&mut map, k);
+        }
+        let (_, p) = position(&map);
+        assert!((p - mirror).norm() < 0.15, "the DoAs alone keep it at the mirror: {p}");
+        assert_eq!(map.restarts, 0);
+        for k in 51..80 {
+            round(&mut map, k);
+        }
+        let (after, p) = position(&map);
+        assert_eq!(map.restarts, 1);
+        assert_eq!(after, id, "the restarted source keeps its id");
+        assert!((p - source).norm() < 0.15, "restarted at {p}");
+    }
 }
