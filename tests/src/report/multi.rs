@@ -10,8 +10,14 @@
 //!   one more id), its latest estimate with a position stamped in
 //!   `(t − WINDOW_S, t]` ([`WINDOW_S`] = 1 s, long enough to bridge a talker's
 //!   pauses, short enough that a lost source leaves the set within a second);
-//! - the **truth set** holds the position at `t` of every source *active* at `t`
-//!   (its `active` intervals; a source without intervals is always active).
+//! - the **truth set** holds the position at `t` of every source *active* in
+//!   the same window `(t − WINDOW_S, t]` (its `active` intervals; a source
+//!   without intervals is always active). Both sets describe the same second:
+//!   an estimate published while its source played is no ghost, and no missed
+//!   source, in the second after the source stops (with the truth taken at
+//!   `t` alone, every source that stops counted as a ghost for up to a second,
+//!   `cocktail`'s two stops and the run's last step about 0.06 ghosts/s of
+//!   correct estimates).
 //!
 //! Figures (steps where both sets are empty are not scored):
 //!
@@ -24,10 +30,10 @@
 //!   Worked example (the unit test): X = {(0,0,0), (3,0,0)}, Y = {(0.3,0,0),
 //!   (3,0.4,0), (10,0,0)}: best pairs 0.3 m and 0.4 m, one extra estimate,
 //!   d = (0.3 + 0.4 + 1) / 3 = 0.5667 m.
-//! - **detection ratio**: share of (step, active source) pairs with an estimate
-//!   of the set within [`DETECTION_RADIUS_M`] (0.5 m), any id.
+//! - **detection ratio**: share of (step, source active *at* `t`) pairs with
+//!   an estimate of the set within [`DETECTION_RADIUS_M`] (0.5 m), any id.
 //! - **ghosts**: estimates of the set farther than [`GHOST_DISTANCE_M`] (1 m)
-//!   from every active source (all of them when none is active).
+//!   from every source of the truth set (all of them when it is empty).
 //!   `ghosts_per_s` is ghost estimate-seconds per second: the mean number of
 //!   ghosts present over the scored steps; `ghost_ratio` is the share of the
 //!   estimates in the sets that are ghosts.
@@ -57,7 +63,7 @@ pub const OSPA_CUTOFF_M: f64 = 1.0;
 pub const OSPA_ORDER: f64 = 1.0;
 /// An active source is detected at a step when an estimate is this close (m).
 pub const DETECTION_RADIUS_M: f64 = 0.5;
-/// An estimate farther than this from every active source is a ghost (m).
+/// An estimate farther than this from every source of the truth set is a ghost (m).
 pub const GHOST_DISTANCE_M: f64 = 1.0;
 
 /// The `multi_target` object of `summary.json` (conventions in the module docs).
@@ -172,10 +178,11 @@ impl MultiTargetSummary {
         for s in 1..=steps {
             let t = s as f64 * STEP_S;
             let set = estimate_set(record, t, WINDOW_S);
+            // The truth set spans the estimate set's window (see the module docs).
             let active: Vec<(usize, Point3<f64>)> = truths
                 .iter()
                 .enumerate()
-                .filter(|(_, x)| x.active_at(t))
+                .filter(|(_, x)| x.active_within(t - WINDOW_S, t))
                 .filter_map(|(i, x)| Some((i, x.position_at(t)?)))
                 .collect();
             if set.is_empty() && active.is_empty() {
@@ -184,7 +191,7 @@ impl MultiTargetSummary {
             let xs: Vec<Point3<f64>> = active.iter().map(|(_, p)| *p).collect();
             let ys: Vec<Point3<f64>> = set.iter().map(|(_, p)| *p).collect();
             ospas.push(ospa(&xs, &ys, OSPA_CUTOFF_M, OSPA_ORDER));
-            for (i, x) in &active {
+            for (i, x) in active.iter().filter(|(i, _)| truths[*i].active_at(t)) {
                 active_steps[*i] += 1;
                 detected[*i] += usize::from(ys.iter().any(|y| (x - y).norm() <= DETECTION_RADIUS_M));
             }
@@ -365,5 +372,53 @@ mod tests {
         assert_eq!(nearest_truth(&sources, 6.0, None), Some(1));
         assert_eq!(nearest_truth(&sources, 20.0, near_b), Some(1), "none active: nearest of all");
         assert_eq!(nearest_truth(&[], 1.0, near_b), None);
+    }
+
+    /// A source plays until 5 s and is published at its place until 4.95 s:
+    /// that last estimate, still in the window after 5 s, is no ghost (and
+    /// no missed source); one published 1.5 s after it stopped is a ghost.
+    #[test]
+    fn an_estimate_of_a_source_that_just_stopped_is_no_ghost() {
+        let at = Point3::new(1.0, 2.0, 1.2);
+        let row = |t_s: f64| crate::report::record::TimelineRow {
+            t_s,
+            distances_m: vec![],
+            theta_deg: 90.0,
+            true_theta_deg: None,
+            gdop: 1.0,
+            estimate_in_map: Some(at),
+            triangulation_in_map: None,
+            trusted: true,
+            method: "kalman_filter".into(),
+            robots: vec![],
+            truth_in_map: None,
+            covariance: None,
+            source_id: 1,
+            truth_source: Some(0),
+            smoothed: None,
+        };
+        let record = |rows: Vec<crate::report::record::TimelineRow>| RunRecord {
+            name: "t".into(),
+            duration_s: 8.0,
+            active_positioning: false,
+            theta_band_deg: (40.0, 140.0),
+            rows,
+            robot_ids: vec![],
+            robots: vec![],
+            sources: vec![SourceTruth { path: vec![(0.0, at)], active: vec![(0.0, 5.0)] }],
+            room: None,
+            seed: None,
+            commands: vec![],
+        };
+        let until_stop: Vec<_> = (1..100).map(|k| row(k as f64 * 0.05)).collect();
+        let m = MultiTargetSummary::new(&record(until_stop.clone())).unwrap();
+        assert_eq!(m.ghosts_per_s, Some(0.0), "{m:?}");
+        assert!(m.ospa_mean_m.unwrap() < 1e-9, "{m:?}");
+        assert_eq!(m.detection_ratio, Some(1.0));
+        let mut late = until_stop;
+        late.push(row(6.5));
+        let m = MultiTargetSummary::new(&record(late)).unwrap();
+        // A ghost in the 10 steps from 6.5 s to 7.4 s, of the steps scored.
+        assert!((m.ghosts_per_s.unwrap() * m.steps as f64 - 10.0).abs() < 1e-9, "{m:?}");
     }
 }

@@ -133,6 +133,11 @@ impl SourceTruth {
         self.active.is_empty() || self.active.iter().any(|(a, b)| *a <= t_s && t_s < *b)
     }
 
+    /// Whether it plays at some time in `(from_s, to_s]`.
+    pub fn active_within(&self, from_s: f64, to_s: f64) -> bool {
+        self.active.is_empty() || self.active.iter().any(|(a, b)| *a <= to_s && *b > from_s)
+    }
+
     /// Its position at `t_s` (`None` with an empty path).
     pub fn position_at(&self, t_s: f64) -> Option<Point3<f64>> {
         let p = &self.path;
