@@ -68,6 +68,16 @@ impl Limits {
     }
 }
 
+/// The aperture of a microphone array: the largest distance between two of
+/// `positions` (m; 0 with fewer than two).
+pub fn aperture_m(positions: &[Point3<f64>]) -> f64 {
+    positions
+        .iter()
+        .enumerate()
+        .flat_map(|(i, a)| positions[i + 1..].iter().map(move |b| (a - b).norm()))
+        .fold(0.0, f64::max)
+}
+
 /// Checks that `v` is finite; errors name `field`.
 pub fn finite(v: f64, field: &str) -> Result<f64, ValidationError> {
     if v.is_finite() { Ok(v) } else { Err(ValidationError::new(field, Problem::NonFinite(v))) }
@@ -226,6 +236,19 @@ pub fn pose_covariance_to_wire(m: &Matrix6<f64>) -> wire::PoseCovariance {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn aperture_is_the_largest_distance_between_two_microphones() {
+        let square = [
+            Point3::new(0.0, 0.0, 0.0),
+            Point3::new(0.3, 0.0, 0.0),
+            Point3::new(0.3, 0.4, 0.0),
+            Point3::new(0.0, 0.4, 0.0),
+        ];
+        assert!((aperture_m(&square) - 0.5).abs() < 1e-12);
+        assert_eq!(aperture_m(&square[..1]), 0.0);
+        assert_eq!(aperture_m(&[]), 0.0);
+    }
 
     fn lim() -> Limits {
         Limits::at(Stamp::from_ns(1_000_000_000_000))

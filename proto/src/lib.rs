@@ -23,7 +23,7 @@ pub mod robot_id;
 pub mod stamp;
 
 pub use error::{Problem, ValidationError};
-pub use geometry::{Limits, pose_from_wire, pose_to_wire, vec3_to_wire};
+pub use geometry::{Limits, aperture_m, pose_from_wire, pose_to_wire, vec3_to_wire};
 pub use messages::{
     ArrayInfo, CommandAck, CommandProgress, CommandState, Hello, Observation, PROTOCOL_VERSION,
     RepositionCommand, RepositionReason, RobotInput, TrackedDoa,

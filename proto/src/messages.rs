@@ -224,6 +224,13 @@ fn band_edges(edges: &[f64], field: &str) -> Result<Vec<f64>, ValidationError> {
 }
 
 impl ArrayInfo {
+    /// The array's aperture (m: the largest distance between two of its
+    /// microphones), when its microphone positions are given.
+    pub fn aperture_m(&self) -> Option<f64> {
+        (self.microphone_positions.len() >= 2)
+            .then(|| crate::geometry::aperture_m(&self.microphone_positions))
+    }
+
     /// Validates a wire array description; errors name fields under `field`.
     pub fn from_wire(
         a: &Option<wire::ArrayDescription>,

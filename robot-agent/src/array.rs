@@ -213,13 +213,7 @@ impl ArrayGeometry {
     /// Largest distance between two microphones (aperture), metres.
     pub fn aperture_m(&self) -> f64 {
         let p: Vec<_> = self.positions().collect();
-        let mut best = 0.0f64;
-        for i in 0..p.len() {
-            for j in i + 1..p.len() {
-                best = best.max((p[i] - p[j]).norm());
-            }
-        }
-        best
+        soundmap_proto::aperture_m(&p)
     }
 
     /// Normal of the best-fit plane through the microphones and the largest

@@ -92,13 +92,7 @@ pub struct RobotEntry {
 impl RobotEntry {
     /// A robot that just said hello on `conn`; `index` numbers it.
     pub fn new(hello: Hello, index: u32, conn: ConnId, now: Stamp) -> Self {
-        let mics = &hello.array.microphone_positions;
-        let aperture_m = (mics.len() >= 2).then(|| {
-            mics.iter()
-                .enumerate()
-                .flat_map(|(i, a)| mics[i + 1..].iter().map(move |b| (a - b).norm()))
-                .fold(0.0, f64::max)
-        });
+        let aperture_m = hello.array.aperture_m();
         RobotEntry {
             hello,
             index,
