@@ -180,6 +180,7 @@ fn three_robots_two_sources_no_ghosts_and_a_returning_source_keeps_its_id() {
     let births = c.sound_map().unwrap().births;
     println!("after the pause: ids per source {ids_back:?}, worst {worst_back:.3} m, {births} births in all");
     assert_eq!(births, 3, "source 2 was lost during the pause and born again");
+    assert_eq!(c.source_track_events(), (3, 0), "what /metrics counts: born, restarted");
     assert_eq!(ids_back.get(&1), Some(&vec![id2]), "the returning source keeps its id");
     assert!(worst_back < 0.3);
 }

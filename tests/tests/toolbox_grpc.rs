@@ -166,6 +166,8 @@ fn check_scrape(scrape: &Value, steps: usize) {
     assert_eq!(get("soundmap_up{}"), 1.0);
     let published = get("soundmap_estimates_published_total{}");
     assert!(published >= 5.0, "{published}");
+    assert!(get("soundmap_source_tracks_total{state=born}") >= 1.0, "no source track counted in {s:#?}");
+    assert!(get("soundmap_source_tracks_total{state=restarted}") >= 0.0);
     let latency_count = get("soundmap_estimate_latency_seconds_count{}");
     assert!(latency_count >= 5.0 && latency_count <= 2.0 * steps as f64, "{latency_count}");
     assert_eq!(get("soundmap_estimate_latency_seconds_bucket{le=+Inf}"), latency_count);

@@ -675,6 +675,17 @@ impl Coordinator {
         self.robots.get(id).map(|e| e.liveness(now, self.stale_after_ns()))
     }
 
+    /// Source tracks since start: (born, restarted). With several sources,
+    /// the sound map's births and diverged sources restarted from their rays;
+    /// with one, the tracker's new tracks and its restarts from a good
+    /// geometry after a poor start.
+    pub fn source_track_events(&self) -> (u64, u64) {
+        if let Some(map) = self.sound_map() {
+            return (map.births, map.restarts);
+        }
+        self.tracking_counters().map_or((0, 0), |c| (c.tracks_started - c.restarts, c.restarts))
+    }
+
     /// Counters since start.
     pub fn counters(&self) -> Counters {
         self.counters

@@ -135,6 +135,8 @@ pub struct Actor {
     planner_logged: Option<(PlanKind, &'static str, Instant)>,
     /// The planner decision last counted in the metrics: (decided, kind, reason key).
     planner_counted: Option<(Stamp, PlanKind, &'static str)>,
+    /// Source tracks (born, restarted) last counted in the metrics.
+    tracks_counted: (u64, u64),
 }
 
 impl std::fmt::Debug for Actor {
@@ -170,6 +172,7 @@ impl Actor {
             receipts: Vec::new(),
             planner_logged: None,
             planner_counted: None,
+            tracks_counted: (0, 0),
         }
     }
 
@@ -416,6 +419,17 @@ impl Actor {
 
     fn publish(&mut self, now: Stamp) {
         let estimates = self.coordinator.estimate(now);
+        let events = self.coordinator.source_track_events();
+        if events != self.tracks_counted {
+            let tracks = &self.metrics.telemetry.source_tracks;
+            let (born, restarted) = (
+                events.0.saturating_sub(self.tracks_counted.0),
+                events.1.saturating_sub(self.tracks_counted.1),
+            );
+            tracks.get_or_create(&StateLabel { state: "born" }).inc_by(born);
+            tracks.get_or_create(&StateLabel { state: "restarted" }).inc_by(restarted);
+            self.tracks_counted = events;
+        }
         if estimates.is_empty() {
             return;
         }

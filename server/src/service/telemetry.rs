@@ -9,7 +9,7 @@
 //!   the receipt → publication latency of each observation that led to an
 //!   estimate, the coordinator task's time per batch of requests, planner
 //!   decisions by outcome and reason, commands sent and robots' reports on them
-//!   by state. Rates are Prometheus' `rate()` of these counters.
+//!   by state, source tracks born and restarted. Rates are Prometheus' `rate()` of these counters.
 //! - **State**, read at scrape time from the same snapshot `GetState` returns:
 //!   each robot's liveness (one series per robot with value 1 at its current
 //!   state) and the age of its last message, sources by track state and
@@ -100,6 +100,11 @@ pub struct Telemetry {
     /// and robots' reports on them (`accepted`, `refused`, `executing`,
     /// `succeeded`, `failed`, `canceled`).
     pub commands: Family<StateLabel, Counter>,
+    /// Source tracks started: `born` (a new source, or a new track of the
+    /// single source) and `restarted` (a live one started again: from its own
+    /// rays when its filter diverged, or from a good geometry after a poor
+    /// start).
+    pub source_tracks: Family<StateLabel, Counter>,
 }
 
 impl Default for Telemetry {
@@ -143,6 +148,15 @@ impl Default for Telemetry {
             "Reposition commands sent and cancelled, and robots' reports on them, by state",
             commands.clone(),
         );
+        let source_tracks = Family::<StateLabel, Counter>::default();
+        registry.register(
+            "source_tracks",
+            "Source tracks started, by state: born (a new source or track), restarted (a live one started again)",
+            source_tracks.clone(),
+        );
+        for state in ["born", "restarted"] {
+            let _series = source_tracks.get_or_create(&StateLabel { state });
+        }
         Telemetry {
             registry,
             observations_accepted,
@@ -152,6 +166,7 @@ impl Default for Telemetry {
             batch_seconds,
             planner_decisions,
             commands,
+            source_tracks,
         }
     }
 }
