@@ -182,9 +182,10 @@ const MIN_SIGNATURE_SIMILARITY: f64 = 0.3;
 /// [`crate::association`]).
 const SILENT_NS: i64 = 500_000_000;
 
-/// Azimuth slack beyond 3 σ within which a third robot's ray counts as
-/// pointing at a candidate (rad, 3°): rooms bias azimuths by about a degree.
-const UNHEARD_SLACK_RAD: f64 = 0.052;
+/// Slack beyond 3 σ within which a ray counts as pointing at a point (rad,
+/// 3°): rooms bias DoAs by about a degree. Used by unheard candidates (in
+/// azimuth) and diverged filters.
+const RAY_SLACK_RAD: f64 = 0.052;
 
 /// A source's filter and its own rays' triangulation further apart than this
 /// χ² (3 dof) quantile of their summed covariances, and than
@@ -428,7 +429,7 @@ impl SoundMap {
                 }
                 let Some((keys, tri, newest)) = self.candidate(a, b, &free, config) else { continue };
                 let unheard = if keys.len() == 2 { self.unheard(&tri, &keys, aligned) } else { None };
-                if let Some((robot, p)) = unheard {
+                if let (Some(robot), Some(p)) = (unheard, tri.solution().map(|s| s.source_in_map)) {
                     tracing::debug!(
                         at_ns = a.stamp.as_ns(),
                         robot,
@@ -520,14 +521,8 @@ impl SoundMap {
     /// A robot other than the candidate's, hearing something, with an array
     /// no smaller than theirs and no farther from the candidate than
     /// `unheard_range_ratio` × the farther of its robots, that has no ray
-    /// towards it, if there is one, with the candidate's point (see the
-    /// module docs).
-    fn unheard(
-        &self,
-        tri: &Triangulation,
-        keys: &[TrackKey],
-        aligned: &[AlignedRays],
-    ) -> Option<(u32, Point3<f64>)> {
+    /// towards it, if there is one (see the module docs).
+    fn unheard(&self, tri: &Triangulation, keys: &[TrackKey], aligned: &[AlignedRays]) -> Option<u32> {
         let ratio = self.config.unheard_range_ratio;
         let point = tri.solution().map(|s| s.source_in_map)?;
         if ratio <= 0.0 {
@@ -555,10 +550,10 @@ impl SoundMap {
             near && a.rays.iter().all(|t| {
                 let d = horizontal(t.ray.direction_in_map.into_inner());
                 let angle = to.angle(&d);
-                angle > 3.0 * t.ray.sigma_rad + UNHEARD_SLACK_RAD
+                angle > 3.0 * t.ray.sigma_rad + RAY_SLACK_RAD
             })
         });
-        unheard_by.map(|a| (a.robot, point))
+        unheard_by.map(|a| a.robot)
     }
 
     fn birth(&mut self, now: Stamp, newest: Stamp, tri: &Triangulation, keys: &[(u32, u64)]) {
@@ -634,8 +629,14 @@ impl SoundMap {
     }
 
     /// The rays in `aligned` labelled with source `id` (one per robot), their
-    /// robots and newest stamp.
-    fn labelled(&self, id: u64, aligned: &[AlignedRays], fresh_ns: i64) -> (Vec<u32>, Vec<Ray>, Stamp) {
+    /// robots and newest stamp; with `fresh_ns`, only those whose track fed
+    /// the source within that long before the ray.
+    fn labelled(
+        &self,
+        id: u64,
+        aligned: &[AlignedRays],
+        fresh_ns: Option<i64>,
+    ) -> (Vec<u32>, Vec<Ray>, Stamp) {
         let mut robots = Vec::new();
         let mut rays = Vec::new();
         let mut newest = Stamp::ZERO;
@@ -643,7 +644,7 @@ impl SoundMap {
             let labelled = a.rays.iter().find(|t| {
                 self.labels
                     .get(&(a.robot, t.track_id))
-                    .is_some_and(|l| l.source == id && a.stamp - l.last <= fresh_ns)
+                    .is_some_and(|l| l.source == id && fresh_ns.is_none_or(|f| a.stamp - l.last <= f))
             });
             if let Some(t) = labelled {
                 robots.push(a.robot);
@@ -661,7 +662,7 @@ impl SoundMap {
         let limit = chi2_quantile(3, DIVERGED_PROBABILITY);
         let inflation = self.tracker.init_covariance_inflation;
         for i in 0..self.sources.len() {
-            let (_, rays, newest) = self.labelled(self.sources[i].id, aligned, FRESH_LABEL_NS);
+            let (_, rays, newest) = self.labelled(self.sources[i].id, aligned, Some(FRESH_LABEL_NS));
             if rays.len() < 2 {
                 continue;
             }
@@ -670,7 +671,7 @@ impl SoundMap {
             // triangulation needed.
             let near = rays.iter().all(|r| {
                 let to = e.position_in_map - r.origin_in_map;
-                to.angle(&r.direction_in_map) <= 3.0 * r.sigma_rad + UNHEARD_SLACK_RAD
+                to.angle(&r.direction_in_map) <= 3.0 * r.sigma_rad + RAY_SLACK_RAD
             });
             let s = &mut self.sources[i];
             if near {
@@ -723,7 +724,7 @@ impl SoundMap {
     ) -> Vec<SourceSighting> {
         let mut out = Vec::new();
         for s in &self.sources {
-            let (robots, rays, newest) = self.labelled(s.id, aligned, LABEL_TTL_NS);
+            let (robots, rays, newest) = self.labelled(s.id, aligned, None);
             if rays.len() < 2 {
                 continue;
             }
