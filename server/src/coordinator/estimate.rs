@@ -125,6 +125,12 @@ impl Estimate {
         }
     }
 
+    /// Whether the rays of at least two robots were combined (the sound map
+    /// also publishes a source on one robot's ray for a short while).
+    pub fn triangulated(&self) -> bool {
+        self.robots.len() >= 2
+    }
+
     /// GDOP of the triangulation (infinite when not available).
     pub fn gdop(&self) -> f64 {
         self.triangulation.solution().map_or(f64::INFINITY, |s| s.quality.gdop)

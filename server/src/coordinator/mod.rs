@@ -525,7 +525,7 @@ impl Coordinator {
                 estimates.iter().filter(|e| e.source_id != served.source_id).cloned().collect();
             self.reposition(now, &served, &others);
             self.serving = None;
-        } else if estimates.is_empty() && self.positioning.due(now) {
+        } else if !estimates.iter().any(Estimate::triangulated) && self.positioning.due(now) {
             self.reposition_without_estimate(now);
         }
         estimates
@@ -534,13 +534,17 @@ impl Coordinator {
     /// The estimate active positioning serves in this batch, and why: the focus
     /// source, or with focus 0 ("all") the source whose geometry is worst
     /// (largest GDOP), so that each cycle improves the worst-placed source.
+    /// Only estimates of at least two robots' rays are served: one robot's ray
+    /// gives the planner no geometry to improve.
     fn served<'e>(&self, estimates: &'e [Estimate]) -> Option<(&'e Estimate, String)> {
+        let mut triangulated = estimates.iter().filter(|e| e.triangulated());
         if self.focus != 0 {
-            let e = estimates.iter().find(|e| e.source_id == self.focus)?;
+            let e = triangulated.find(|e| e.source_id == self.focus)?;
             return Some((e, "the operator's focus".into()));
         }
-        let worst = estimates.iter().max_by(|a, b| a.gdop().total_cmp(&b.gdop()))?;
-        let why = match estimates.len() {
+        let n = triangulated.clone().count();
+        let worst = triangulated.max_by(|a, b| a.gdop().total_cmp(&b.gdop()))?;
+        let why = match n {
             1 => "the only source heard".to_owned(),
             n => format!("the worst geometry of {n} sources, GDOP {:.1}", worst.gdop()),
         };
