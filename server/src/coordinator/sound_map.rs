@@ -687,7 +687,9 @@ impl SoundMap {
 
     /// Restarts, from its own rays' triangulation, a source whose filter has
     /// disagreed with that triangulation for [`DIVERGED_NS`] (see the module
-    /// docs, "Diverged filters").
+    /// docs, "Diverged filters"). On the way, notes when two robots' fresh
+    /// rays last fed each source (`last_pair`, read by
+    /// [`SoundMap::held_by_one`]): the same fresh rays judge both.
     fn restarts(&mut self, aligned: &[AlignedRays], config: &TriangulationConfig) {
         let limit = chi2_quantile(3, DIVERGED_PROBABILITY);
         let inflation = self.tracker.init_covariance_inflation;
@@ -745,22 +747,22 @@ impl SoundMap {
         }
     }
 
-    /// Whether a source that only robot's `ray` (stamped `newest`) hears at
-    /// `stamp` is still published (see the module docs, "One robot's ray"):
-    /// its track fed the source within [`FRESH_LABEL_NS`], two robots' fresh
-    /// rays fed it within [`ONE_ROBOT_HOLD_NS`], its filter is trusted, and
-    /// no other live source explains the ray.
+    /// Whether a source that only robot's `ray` (stamped `newest`) hears is
+    /// still published (see the module docs, "One robot's ray"): its track fed
+    /// the source within [`FRESH_LABEL_NS`], two robots' fresh rays fed it
+    /// within [`ONE_ROBOT_HOLD_NS`], its filter at the sighting (`filtered`)
+    /// is trusted, and no other live source explains the ray.
     fn held_by_one(
         &self,
         s: &MapSource,
         aligned: &[AlignedRays],
         ray: &Ray,
         newest: Stamp,
-        stamp: Stamp,
+        filtered: Option<&TrackEstimate>,
     ) -> bool {
         s.last_pair.is_some_and(|p| newest - p <= ONE_ROBOT_HOLD_NS)
             && self.labelled(s.id, aligned, Some(FRESH_LABEL_NS)).1.len() == 1
-            && s.tracker.predict_to(stamp).is_some_and(|e| e.trusted)
+            && filtered.is_some_and(|e| e.trusted)
             && !self
                 .sources
                 .iter()
@@ -779,14 +781,18 @@ impl SoundMap {
         let mut out = Vec::new();
         for s in &self.sources {
             let (robots, rays, newest) = self.labelled(s.id, aligned, None);
-            if rays.len() < 2 && !(rays.len() == 1 && self.held_by_one(s, aligned, &rays[0], newest, stamp)) {
+            if rays.is_empty() {
+                continue;
+            }
+            let filtered = s.tracker.predict_to(stamp);
+            if rays.len() == 1 && !self.held_by_one(s, aligned, &rays[0], newest, filtered.as_ref()) {
                 continue;
             }
             out.push(SourceSighting {
                 source_id: s.id,
                 robots,
                 triangulation: triangulate(&rays, config),
-                filtered: s.tracker.predict_to(stamp),
+                filtered,
                 smoothed: s.tracker.smoothed(),
                 newest,
             });
