@@ -18,6 +18,22 @@
 //! 1.2 to its own source and 0.9 to another costs 1.2 − 4.6 = −3.4 against
 //! 0.9 + 4.6 = 5.5: it stays with its source unless it leaves its gate.
 //!
+//! **One track per robot per source.** A robot's tracker holds one track per
+//! source it hears, so while a robot's track k fed source j within the last
+//! 0.3 s, a track of the same robot that no source has claimed costs γ/2 more
+//! for j, as a track labelled elsewhere does. Talkers pause between words, and
+//! agents leave a track out of the observations in which it is not active: in
+//! such a round the robot's other tracks (another talker, a reflection) would
+//! otherwise be free to take source j on NIS alone, near the edge of its gate,
+//! be labelled with it, and drag it away. Worked numbers (`cocktail` seed 7,
+//! 27.3 s): the ReSpeaker's track of talker 1 is missing from one observation;
+//! its other track, NIS 6.0 against talker 1's source (within γ = 9.21),
+//! took the source, and within 0.5 s the TurtleBot's track of talker 0
+//! (NIS 7.8) joined it: the source moved 1 m to where those two rays meet.
+//! With the rule both cost 6.0 + 4.6 and 7.8 + 4.6, beyond γ: they stay
+//! unassigned (a new track of a source whose old track ended takes it over
+//! 0.3 s later, or through a birth).
+//!
 //! **Silent sources.** Talkers pause, and a source not heard for a while
 //! (0.5 s) is predicted with a covariance that grows with the silence (its
 //! filter allows it to walk away). A robot-local track no source has claimed

@@ -232,8 +232,9 @@ pub struct SourcesConfig {
     pub reuse_radius_m: f64,
     /// How long a lost source is remembered for that (s).
     pub memory_s: f64,
-    /// No source is born within this distance of a live one (m): rays there that
-    /// no source claimed are taken as that source's outliers.
+    /// No source is born within this horizontal distance of a live one (m), at
+    /// any height: rays there that no source claimed are taken as that
+    /// source's outliers or reflections (elevation is the weak coordinate).
     pub exclusion_radius_m: f64,
     /// A candidate of two robots' rays alone is not born while a third robot
     /// that hears something, with an array no smaller than both of theirs and

@@ -10,7 +10,20 @@
 //!    best disjoint set of candidates is kept ([`crate::association`]). A
 //!    candidate made of the same robot-local tracks must recur in
 //!    `sources.birth_rounds` consecutive rounds before a source is born from its
-//!    triangulation. A source born within `sources.reuse_radius_m` of a
+//!    triangulation; candidates born in one round are checked against the
+//!    sources born before them in it, so two disjoint candidates at one
+//!    source (each pair's rays missing the other's point, one robot holding a
+//!    spurious second track of it) give one source, not two (`cocktail` seed
+//!    7: two sources 0.3 m apart at talker 1, which then took turns: three id
+//!    switches). No candidate is born within `sources.exclusion_radius_m` of
+//!    a live source *horizontally*, at any height: elevation is the weak
+//!    coordinate (a ceiling or floor reflection, small planar arrays reading
+//!    10–25° high), and a robot's second track at a live source's azimuth but
+//!    a steeper elevation, met by another robot's stray ray, triangulates
+//!    above that source (`cocktail` seed 31: the TurtleBot's track of talker
+//!    0's ceiling image, 118° at 48° elevation beside its direct track at
+//!    117° and 27°, met the ReSpeaker's stray track 1.4 m above the talker, a
+//!    ghost for 4.7 s). A source born within `sources.reuse_radius_m` of a
 //!    remembered one, or of a live one silent for 0.5 s (which it replaces),
 //!    takes back its id: a talker who pauses and speaks again at the same
 //!    place keeps their id. A source's place is where it was last trusted.
@@ -20,7 +33,9 @@
 //!    global nearest neighbour with a prior that holds each robot-local track
 //!    on the source it fed ([`crate::association`]). The assignments are
 //!    remembered as *labels* (robot, local track) → source. A track without a
-//!    label is never given to a silent source (see [`crate::association`]).
+//!    label is never given to a silent source, and pays the penalty of a
+//!    foreign label for a source another track of its robot fed within
+//!    0.3 s (see [`crate::association`]).
 //!
 //! **Unheard candidates** (negative information). Two robots' rays aimed at
 //! two different sources can meet where nothing is; a third robot can say
@@ -371,6 +386,21 @@ impl SoundMap {
             return;
         }
         let half = self.gate * 0.5;
+        // The track of this robot that fed each source within the last
+        // 0.3 s, if any: another track of the robot joins that source only
+        // as a track labelled elsewhere does (see the module docs).
+        let mut held: Vec<Option<(u64, Stamp)>> = vec![None; self.sources.len()];
+        let unlabelled = q.item.iter().any(|t| !self.labels.contains_key(&(q.robot, t.track_id)));
+        for (&(robot, track), l) in self.labels.iter().filter(|_| unlabelled) {
+            if robot != q.robot || q.stamp - l.last > FRESH_LABEL_NS {
+                continue;
+            }
+            if let Some(j) = self.sources.iter().position(|s| s.id == l.source)
+                && held[j].is_none_or(|(_, last)| l.last > last)
+            {
+                held[j] = Some((track, l.last));
+            }
+        }
         let cost: Vec<Vec<f64>> = q
             .item
             .iter()
@@ -379,10 +409,12 @@ impl SoundMap {
                 let label = self.labels.get(&(q.robot, *track)).map(|l| l.source);
                 self.sources
                     .iter()
-                    .map(|s| match s.tracker.nis(q.stamp, ray) {
+                    .zip(&held)
+                    .map(|(s, held)| match s.tracker.nis(q.stamp, ray) {
                         Some(nis) if nis <= self.gate => match label {
                             Some(l) if l == s.id => nis - half,
                             Some(_) => nis + half,
+                            None if held.is_some_and(|(k, _)| k != *track) => nis + half,
                             // A new robot-local track resumes a silent source
                             // only through a birth at its place (see the module docs).
                             None if s.is_silent(q.stamp) => f64::INFINITY,
@@ -482,6 +514,12 @@ impl SoundMap {
             seen.insert(members[i].clone(), rounds);
             if rounds >= self.config.birth_rounds {
                 let (tri, newest) = &solutions[i];
+                // Two candidates born in one round at one source (disjoint
+                // tracks of it): the first born excludes the other.
+                if self.near_live(*newest, tri) {
+                    seen.remove(&members[i]);
+                    continue;
+                }
                 self.birth(now, *newest, tri, &members[i]);
                 seen.remove(&members[i]);
             }
@@ -523,28 +561,34 @@ impl SoundMap {
             }
         }
         let tri = if rays.len() > 2 { triangulate(&rays, config) } else { pair };
-        let point = usable(&tri, config)?;
+        usable(&tri, config)?;
         // A silent source is no obstacle: a birth at its place resumes it.
         let at = a.stamp.max(b.stamp);
-        // A live source the candidate is consistent with (within the exclusion
-        // radius, or within the 99 % χ² (3 dof) of their summed covariances)
-        // is the same source heard by tracks not yet labelled with it.
-        let tri_cov = tri.solution().and_then(|s| s.quality.covariance);
-        let same = chi2_quantile(3, 0.99);
-        let near_live = self.sources.iter().filter(|s| !s.is_silent(at)).any(|s| {
-            s.tracker.estimate().is_some_and(|e| {
-                let d = e.position_in_map - point;
-                d.norm() < self.config.exclusion_radius_m
-                    || tri_cov
-                        .and_then(|c| (c + e.position_covariance()).try_inverse())
-                        .is_some_and(|inv| (d.transpose() * inv * d)[(0, 0)] <= same)
-            })
-        });
-        if near_live {
+        if self.near_live(at, &tri) {
             return None;
         }
         keys.sort();
         Some((keys, tri, newest))
+    }
+
+    /// Whether a live source is consistent with triangulation `tri` at `at`
+    /// (within the exclusion radius horizontally, at any height, or within
+    /// the 99 % χ² (3 dof) of their summed covariances): the same source
+    /// heard by tracks not yet labelled with it (see the module docs).
+    fn near_live(&self, at: Stamp, tri: &Triangulation) -> bool {
+        let Some(solution) = tri.solution() else { return false };
+        let point = solution.source_in_map;
+        let tri_cov = solution.quality.covariance;
+        let same = chi2_quantile(3, 0.99);
+        self.sources.iter().filter(|s| !s.is_silent(at)).any(|s| {
+            s.tracker.estimate().is_some_and(|e| {
+                let d = e.position_in_map - point;
+                horizontal(d).norm() < self.config.exclusion_radius_m
+                    || tri_cov
+                        .and_then(|c| (c + e.position_covariance()).try_inverse())
+                        .is_some_and(|inv| (d.transpose() * inv * d)[(0, 0)] <= same)
+            })
+        })
     }
 
     /// A robot other than the candidate's, hearing something, with an array
@@ -969,7 +1013,7 @@ mod tests {
 }
 
 #[cfg(test)]
-mod one_robot_tests {
+mod map_tests {
     use nalgebra::Point3;
     use soundmap_proto::Stamp;
 
@@ -1055,6 +1099,73 @@ mod one_robot_tests {
         }
         // Two robots last fed it at round 39 (1.95 s): published up to 2.45 s.
         assert_eq!(published, (40..=49).collect::<Vec<_>>());
+    }
+
+    /// Two pairs of robots that each hear one source a little apart (0.28 m,
+    /// each pair's rays missing the other's point by more than 3σ) are two
+    /// disjoint birth candidates that recur in the same rounds: one source is
+    /// born, not two.
+    #[test]
+    fn two_pairs_at_one_source_give_one_birth() {
+        let p = Point3::new(0.0, 0.0, 1.2);
+        let q = Point3::new(0.2, 0.2, 1.2);
+        let origins = [
+            Point3::new(-3.0, 0.0, 0.5),
+            Point3::new(0.0, -3.0, 0.5),
+            Point3::new(3.0, 0.0, 0.5),
+            Point3::new(0.0, 3.0, 0.5),
+        ];
+        let mut map = map();
+        for k in 0..10 {
+            let heard: Vec<Hearing> =
+                (0..4).map(|r| (r, origins[r as usize], vec![(if r < 2 { p } else { q }, 1)])).collect();
+            round(&mut map, k, &heard);
+        }
+        assert_eq!(map.births, 1);
+        assert_eq!(map.sources.len(), 1);
+    }
+
+    /// Rays that meet 1.3 m straight above a live source (each robot's second
+    /// track at its azimuth, steeper: the ceiling image) give no birth.
+    #[test]
+    fn no_source_is_born_above_a_live_one() {
+        let p = Point3::new(0.0, 0.0, 1.2);
+        let above = Point3::new(0.0, 0.0, 2.5);
+        let origins = [Point3::new(-3.0, 0.0, 0.5), Point3::new(0.0, -3.0, 0.5)];
+        let mut map = map();
+        for k in 0..40 {
+            round(&mut map, k, &[(0, origins[0], vec![(p, 1)]), (1, origins[1], vec![(p, 1)])]);
+        }
+        for k in 40..60 {
+            round(
+                &mut map,
+                k,
+                &[(0, origins[0], vec![(p, 1), (above, 2)]), (1, origins[1], vec![(p, 1), (above, 2)])],
+            );
+        }
+        assert_eq!(map.births, 1);
+    }
+
+    /// While a robot's track feeds a source, another track of the same robot
+    /// near the edge of that source's gate does not take it over in a round
+    /// the first one is missing from: one robot hears one source as one track.
+    #[test]
+    fn a_robot_s_second_track_does_not_take_over_its_first_track_s_source() {
+        let a = Point3::new(0.0, 0.0, 1.2);
+        let origins = [Point3::new(-3.0, 0.0, 0.5), Point3::new(0.0, -3.0, 0.5)];
+        // 3.5 degrees to the side of `a` from robot 0.
+        let b = Point3::new(0.0, 3.0 * 3.5f64.to_radians().tan(), 1.2);
+        let mut map = map();
+        for k in 0..40 {
+            round(&mut map, k, &[(0, origins[0], vec![(a, 1)]), (1, origins[1], vec![(a, 1)])]);
+        }
+        let id = map.sources[0].id;
+        let stamp = Stamp::from_ns(T0 + 40 * 50_000_000);
+        let nis = map.sources[0].tracker.nis(stamp, &tagged(origins[0], b, 2).ray).expect("a track");
+        assert!(nis > map.gate * 0.5 && nis < map.gate, "NIS {nis} inside the gate, beyond its half");
+        round(&mut map, 40, &[(0, origins[0], vec![(b, 2)]), (1, origins[1], vec![(a, 1)])]);
+        assert!(map.labels.get(&(0, 2)).is_none_or(|l| l.source != id), "track 2 took source {id}");
+        assert_eq!(map.labels.get(&(0, 1)).map(|l| l.source), Some(id));
     }
 
     /// A robot's ray that points at two mapped sources does not say which one
