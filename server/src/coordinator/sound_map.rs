@@ -386,19 +386,18 @@ impl SoundMap {
             return;
         }
         let half = self.gate * 0.5;
-        // The track of this robot that fed each source within the last
-        // 0.3 s, if any: another track of the robot joins that source only
-        // as a track labelled elsewhere does (see the module docs).
-        let mut held: Vec<Option<(u64, Stamp)>> = vec![None; self.sources.len()];
+        // Whether a track of this robot fed each source within the last
+        // 0.3 s: an unlabelled track of the robot (necessarily another one)
+        // joins that source only as a track labelled elsewhere does (see
+        // the module docs). Only needed when the observation has one.
+        let mut held = vec![false; self.sources.len()];
         let unlabelled = q.item.iter().any(|t| !self.labels.contains_key(&(q.robot, t.track_id)));
-        for (&(robot, track), l) in self.labels.iter().filter(|_| unlabelled) {
-            if robot != q.robot || q.stamp - l.last > FRESH_LABEL_NS {
-                continue;
-            }
-            if let Some(j) = self.sources.iter().position(|s| s.id == l.source)
-                && held[j].is_none_or(|(_, last)| l.last > last)
+        for ((robot, _), l) in self.labels.iter().filter(|_| unlabelled) {
+            if *robot == q.robot
+                && q.stamp - l.last <= FRESH_LABEL_NS
+                && let Some(j) = self.sources.iter().position(|s| s.id == l.source)
             {
-                held[j] = Some((track, l.last));
+                held[j] = true;
             }
         }
         let cost: Vec<Vec<f64>> = q
@@ -414,7 +413,7 @@ impl SoundMap {
                         Some(nis) if nis <= self.gate => match label {
                             Some(l) if l == s.id => nis - half,
                             Some(_) => nis + half,
-                            None if held.is_some_and(|(k, _)| k != *track) => nis + half,
+                            None if *held => nis + half,
                             // A new robot-local track resumes a silent source
                             // only through a birth at its place (see the module docs).
                             None if s.is_silent(q.stamp) => f64::INFINITY,
