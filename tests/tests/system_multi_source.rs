@@ -142,22 +142,23 @@ fn two_talkers_are_rendered_heard_and_scored() {
 }
 
 /// Two talkers and a steady fan, one talker pausing and restarting in place.
-/// The scenario's seed (31) gives OSPA 0.236 m, detection 0.85, the fan
-/// found 72 % of the time, 0.013 ghosts/s and no id switch (0.250 m and
-/// 0.065 ghosts/s scored with the truth taken at each step alone, before the
-/// truth set spanned the estimates' one-second window); without the agent's
-/// masked silences and the small array's σ floor by aperture it gave 0.355 m,
-/// the fan 48 % and two switches (BENCHMARKS.md, "Masked silences and honest
-/// small arrays").
+/// The scenario's seed (31) gives OSPA 0.164 m, detection 0.97, the fan
+/// found 99.8 % of the time, 0.037 ghosts/s and no id switch. Before the
+/// agents' masking margin followed where a steady source stops being heard
+/// (6 dB instead of 10, held up to 6 s instead of 3) it gave 0.220 m,
+/// detection 0.87 and the fan 74 % (BENCHMARKS.md, "The masking margin where
+/// a steady source stops being heard"); without masked silences at all and
+/// the small array's σ floor by aperture, 0.355 m and the fan 48 %.
 #[test]
 fn cocktail_is_rendered_heard_and_scored() {
     let s = run_and_check("cocktail", None, true);
     println!("cocktail\n{HEADER}\n{}", line(s.seed.unwrap_or(0), &s));
     let m = s.multi_target.as_ref().expect("multi-target figures");
-    assert!(m.ospa_mean_m.is_some_and(|v| v <= 0.30), "OSPA mean {:?} m", m.ospa_mean_m);
+    assert!(m.ospa_mean_m.is_some_and(|v| v <= 0.25), "OSPA mean {:?} m", m.ospa_mean_m);
+    assert!(m.detection_ratio.is_some_and(|d| d >= 0.9), "detection {:?}", m.detection_ratio);
     let fan = &m.sources[2];
     assert!(
-        fan.detection_ratio.is_some_and(|d| d >= 0.6),
+        fan.detection_ratio.is_some_and(|d| d >= 0.9),
         "the fan detected {:?} of the time",
         fan.detection_ratio
     );
