@@ -88,8 +88,8 @@
 //! confirmed tracks in `cocktail` (Pioneer and TurtleBot, seeds 41 and 42, not
 //! among the scored seeds), the share of hops with a detection is 0.69 within
 //! 2 dB of the track's level, 0.18 at +2 to +4 dB, 0.025 at +4 to +6 dB,
-//! 0.002 at +6 to +8 dB and none of 9,300 hops beyond (seeds 3 and 7: 0.78,
-//! 0.21, 0.024, 0.004, 1 in 9,000). A hop 6 dB louder than a steady source's
+//! 0.002 at +6 to +8 dB and none of 11,500 hops beyond (seeds 3 and 7: 0.78,
+//! 0.21, 0.024, 0.004, 3 in 9,200). A hop 6 dB louder than a steady source's
 //! level, the other sounds then carrying three quarters of its power, does
 //! not show that source's peak among the hop's potentials, so its silence
 //! there is no evidence. With a 10 dB margin the fan's hops at +6 to +10 dB
