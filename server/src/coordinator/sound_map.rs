@@ -391,13 +391,14 @@ impl SoundMap {
         // joins that source only as a track labelled elsewhere does (see
         // the module docs). Only needed when the observation has one.
         let mut held = vec![false; self.sources.len()];
-        let unlabelled = q.item.iter().any(|t| !self.labels.contains_key(&(q.robot, t.track_id)));
-        for ((robot, _), l) in self.labels.iter().filter(|_| unlabelled) {
-            if *robot == q.robot
-                && q.stamp - l.last <= FRESH_LABEL_NS
-                && let Some(j) = self.sources.iter().position(|s| s.id == l.source)
-            {
-                held[j] = true;
+        if q.item.iter().any(|t| !self.labels.contains_key(&(q.robot, t.track_id))) {
+            for ((robot, _), l) in &self.labels {
+                if *robot == q.robot
+                    && q.stamp - l.last <= FRESH_LABEL_NS
+                    && let Some(j) = self.sources.iter().position(|s| s.id == l.source)
+                {
+                    held[j] = true;
+                }
             }
         }
         let cost: Vec<Vec<f64>> = q
