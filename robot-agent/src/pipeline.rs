@@ -235,7 +235,8 @@ impl Pipeline {
         let stft = Stft::new(array.channels(), config.frame_len, config.hop_len, config.window)?;
         let srp = Srp::new(array, fs, config.frame_len, &config.srp)?;
         let hop_s = config.hop_len as f64 / fs as f64;
-        let tracker = DoaTracker::new(&config.tracker, hop_s, config.srp.max_sources, srp.noise_model())?;
+        let mut tracker = DoaTracker::new(&config.tracker, hop_s, config.srp.max_sources, srp.noise_model())?;
+        tracker.set_microphones(&array.positions().map(|p| p.coords).collect::<Vec<_>>());
         let signatures = Signatures::new(array, &config.signature, &config.signature_layout())?;
         let (k, bands) = (signatures.max_tracks(), signatures.bands());
         let offset_samples = config.hop_len as f64 - config.frame_len as f64 / 2.0;

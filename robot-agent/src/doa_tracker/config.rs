@@ -89,6 +89,17 @@ pub struct TrackerConfig {
     pub rotation_deadband_deg: f64,
     /// Most tracks at once.
     pub max_tracks: usize,
+    /// Shape each measurement's covariance, and the gates, by how well the
+    /// array measures each tangent direction (its microphones' spread
+    /// across it): a nearly planar array measures elevation near its plane
+    /// poorly, and single-frame peaks there scatter in elevation far more
+    /// than in azimuth. Angles in the gates, `birth_gate_deg` and
+    /// `merge_deg` are then in units of the best-measured axis. See the
+    /// module docs, "Nearly planar arrays".
+    pub shaped_measurement_noise: bool,
+    /// Largest ratio of the worst- to the best-measured axis's σ in the
+    /// shaped measurement noise.
+    pub max_shape_ratio: f64,
 }
 
 impl Default for TrackerConfig {
@@ -121,6 +132,8 @@ impl Default for TrackerConfig {
             merge_deg: 5.0,
             rotation_deadband_deg: 1.0,
             max_tracks: 8,
+            shaped_measurement_noise: true,
+            max_shape_ratio: 6.0,
         }
     }
 }

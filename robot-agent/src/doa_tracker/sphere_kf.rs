@@ -98,31 +98,51 @@ impl SphereKf {
         Vector2::new(proj.dot(&self.e1), proj.dot(&self.e2)) * (angle / s)
     }
 
+    /// The tangent basis `(e₁, e₂)` at `d`.
+    pub fn basis(&self) -> (Vector3<f64>, Vector3<f64>) {
+        (self.e1, self.e2)
+    }
+
     /// Innovation covariance for a measurement of per-axis variance `r2`.
     pub fn innovation_cov(&self, r2: f64) -> Matrix2<f64> {
-        self.p.fixed_view::<2, 2>(0, 0).into_owned() + Matrix2::identity() * r2
+        self.innovation_cov_of(&(Matrix2::identity() * r2))
+    }
+
+    /// Innovation covariance for a measurement of covariance `r` (in `(e₁, e₂)`).
+    pub fn innovation_cov_of(&self, r: &Matrix2<f64>) -> Matrix2<f64> {
+        self.p.fixed_view::<2, 2>(0, 0).into_owned() + r
     }
 
     /// Squared Mahalanobis distance of measurement `z` (2 dof).
     pub fn mahalanobis2(&self, z: &Vector3<f64>, r2: f64) -> f64 {
+        self.mahalanobis2_of(z, &(Matrix2::identity() * r2))
+    }
+
+    /// [`Self::mahalanobis2`] for a measurement of covariance `r`.
+    pub fn mahalanobis2_of(&self, z: &Vector3<f64>, r: &Matrix2<f64>) -> f64 {
         let y = self.residual(z);
-        let s = self.innovation_cov(r2);
+        let s = self.innovation_cov_of(r);
         s.try_inverse().map_or(f64::INFINITY, |si| (y.transpose() * si * y)[(0, 0)])
     }
 
     /// Kalman update with measurement `z` (unit vector) of per-axis variance `r2`.
     pub fn update(&mut self, z: &Vector3<f64>, r2: f64) {
+        self.update_with(z, &(Matrix2::identity() * r2));
+    }
+
+    /// [`Self::update`] for a measurement of covariance `r` (in `(e₁, e₂)`).
+    pub fn update_with(&mut self, z: &Vector3<f64>, r: &Matrix2<f64>) {
         let y = self.residual(z);
         let mut h = Matrix2x4::zeros();
         h[(0, 0)] = 1.0;
         h[(1, 1)] = 1.0;
-        let s = self.innovation_cov(r2);
+        let s = self.innovation_cov_of(r);
         let Some(si) = s.try_inverse() else { return };
         let k: Matrix4x2<f64> = self.p * h.transpose() * si;
         let dx = k * y;
         // Joseph form keeps P symmetric positive definite.
         let ikh = Matrix4::identity() - k * h;
-        self.p = ikh * self.p * ikh.transpose() + k * (Matrix2::identity() * r2) * k.transpose();
+        self.p = ikh * self.p * ikh.transpose() + k * r * k.transpose();
         self.p = 0.5 * (self.p + self.p.transpose());
         self.omega += Vector2::new(dx[2], dx[3]);
         let t = self.e1 * dx[0] + self.e2 * dx[1];
