@@ -95,7 +95,9 @@ pub struct TrackerConfig {
     /// poorly, and single-frame peaks there scatter in elevation far more
     /// than in azimuth. Angles in the gates, `birth_gate_deg` and
     /// `merge_deg` are then in units of the best-measured axis. See the
-    /// module docs, "Nearly planar arrays".
+    /// module docs, "Nearly planar arrays". Experimental, off: it helps
+    /// static robots (a talker heard from a corner, `cocktail`) and costs
+    /// detection and ghosts for robots moving among several sources.
     pub shaped_measurement_noise: bool,
     /// Largest ratio of the worst- to the best-measured axis's σ in the
     /// shaped measurement noise.
@@ -132,7 +134,7 @@ impl Default for TrackerConfig {
             merge_deg: 5.0,
             rotation_deadband_deg: 1.0,
             max_tracks: 8,
-            shaped_measurement_noise: true,
+            shaped_measurement_noise: false,
             max_shape_ratio: 6.0,
         }
     }
