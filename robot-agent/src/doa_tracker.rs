@@ -236,15 +236,18 @@ impl Shape {
     /// `√(yᵀ S⁻¹ y)`, `y` the log map of `v` at `u`.
     fn angle(shape: Option<&Shape>, u: &Vector3<f64>, v: &Vector3<f64>) -> f64 {
         let Some(shape) = shape else { return u.angle(v) };
-        let (e1, e2) = crate::srp::refine::tangent_basis(&Unit::new_unchecked(*u));
-        let c = u.dot(v).clamp(-1.0, 1.0);
-        let proj = v - u * c;
-        let sn = proj.norm();
-        if sn < 1e-15 {
-            return if c > 0.0 { 0.0 } else { std::f64::consts::PI };
+        if u.dot(v) < 0.0 && u.cross(v).norm() < 1e-15 {
+            return std::f64::consts::PI; // antipodes: the log map is undefined
         }
-        let y = Vector2::new(proj.dot(&e1), proj.dot(&e2)) * (sn.atan2(c) / sn);
+        let (e1, e2) = crate::srp::refine::tangent_basis(&Unit::new_unchecked(*u));
+        let y = sphere_kf::log_map(u, (&e1, &e2), v);
         let (_, inverse) = shape.at(&e1, &e2);
+        shape.length(&y, &inverse)
+    }
+
+    /// `√(yᵀ S⁻¹ y)`: the length of tangent vector `y` in units of the
+    /// best-measured axis.
+    fn length(&self, y: &Vector2<f64>, inverse: &Matrix2<f64>) -> f64 {
         (y.transpose() * inverse * y)[(0, 0)].max(0.0).sqrt()
     }
 }
@@ -557,17 +560,25 @@ impl DoaTracker {
         self.pairs.clear();
         let min_gate = cfg.min_gate_deg.to_radians();
         let max_gate = cfg.max_gate_deg.to_radians().max(min_gate);
+        // Each track's measurement shape, computed once per hop for its
+        // gating and its update (the track does not move in between).
+        let mut shapes = [(Matrix2::identity(), Matrix2::identity()); MAX_TRACKS];
         for (ti, t) in self.tracks.iter().enumerate() {
             let (shape, inverse) = self.shape_of(&t.kf);
+            if let Some(slot) = shapes.get_mut(ti) {
+                *slot = (shape, inverse);
+            }
             for (pi, p) in potentials.iter().enumerate().take(self.used.len()) {
                 if p.energy < cfg.update_min_coherence {
                     continue;
                 }
                 let z = p.direction_in_array.into_inner();
                 let m2 = t.kf.mahalanobis2_of(&z, &(shape * (t.r2 * self.inflation)));
-                // The angle in units of the best-measured axis.
-                let y = t.kf.residual(&z);
-                let angle = (y.transpose() * inverse * y)[(0, 0)].max(0.0).sqrt();
+                // The angle, in units of the best-measured axis when shaped.
+                let angle = match &self.shape {
+                    Some(s) => s.length(&t.kf.residual(&z), &inverse),
+                    None => t.kf.d.angle(&z),
+                };
                 if ((m2 <= cfg.gate_chi2 && angle <= max_gate) || angle <= min_gate)
                     && self.pairs.len() < self.pairs.capacity()
                 {
@@ -586,7 +597,7 @@ impl DoaTracker {
             }
             self.used[pi] = true;
             updated[ti] = true;
-            let (shape, inverse) = self.shape_of(&self.tracks[ti].kf);
+            let (shape, inverse) = shapes[ti];
             let t = &mut self.tracks[ti];
             let z = potentials[pi].direction_in_array.into_inner();
             // Learn the measurement variance from the innovation (clipped

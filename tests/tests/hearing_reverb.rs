@@ -193,6 +193,12 @@ fn frame_errors(array: &ArrayGeometry, config: &PipelineConfig, case: &Case, ref
         .collect()
 }
 
+/// Azimuth of `d` minus that of `truth` (array frame), radians in `[−π, π)`.
+fn azimuth_error(d: &Vector3<f64>, truth: &Vector3<f64>) -> f64 {
+    use std::f64::consts::{PI, TAU};
+    (d.y.atan2(d.x) - truth.y.atan2(truth.x) + PI).rem_euclid(TAU) - PI
+}
+
 fn quantile(v: &[f64], q: f64) -> f64 {
     let mut s = v.to_vec();
     s.sort_by(f64::total_cmp);
@@ -412,13 +418,9 @@ fn corner_hops(case: &Case, emission: Emission, config: &PipelineConfig) -> Corn
         let angle = |d: &nalgebra::Unit<Vector3<f64>>| d.dot(&truth).clamp(-1.0, 1.0).acos().to_degrees();
         let confirmed = || r.tracks.iter().filter(|k| k.confirmed);
         on_source += confirmed().any(|k| angle(&k.direction_in_array) <= 10.0) as usize;
-        let azimuth = |d: &Vector3<f64>| d.y.atan2(d.x);
-        let azimuth_error = |d: &Vector3<f64>| {
-            (azimuth(d) - azimuth(&truth) + std::f64::consts::PI).rem_euclid(std::f64::consts::TAU)
-                - std::f64::consts::PI
-        };
-        on_azimuth +=
-            confirmed().any(|k| azimuth_error(&k.direction_in_array).abs().to_degrees() <= 10.0) as usize;
+        on_azimuth += confirmed()
+            .any(|k| azimuth_error(&k.direction_in_array, &truth).abs().to_degrees() <= 10.0)
+            as usize;
         astray +=
             confirmed().any(|k| emission == Emission::Silent || angle(&k.direction_in_array) > 20.0) as usize;
     });
@@ -505,7 +507,6 @@ fn robot_in_a_corner_hears_the_source_and_not_the_noise() {
 #[ignore = "about a minute; run with --ignored --nocapture"]
 fn error_parts_sweep() {
     use soundmap_server::floor_image::{FloorFold, array_pattern};
-    use std::f64::consts::{PI, TAU};
     let config = measured_config();
     println!(
         "{:<24} {:>6} {:>15} {:>15} {:>17} {:>17}",
@@ -522,7 +523,7 @@ fn error_parts_sweep() {
             for seed in 1000..1012 {
                 let case = Case::draw(rt60, seed);
                 let truth = truth(&case);
-                let (azimuth, elevation) = (truth.y.atan2(truth.x), truth.z.asin());
+                let elevation = truth.z.asin();
                 let fold = FloorFold {
                     array_height_m: case.array_at.z,
                     reflection: 0.6,
@@ -534,7 +535,7 @@ fn error_parts_sweep() {
                     * fold.measured_direction(&case.array_at, &case.source).unwrap().into_inner();
                 let mut frames: [Vec<f64>; 4] = Default::default();
                 for d in frame_directions(&array, &config, &case, true) {
-                    let da = (d.y.atan2(d.x) - azimuth + PI).rem_euclid(TAU) - PI;
+                    let da = azimuth_error(&d, &truth);
                     frames[0].push(d.dot(&truth).clamp(-1.0, 1.0).acos().to_degrees());
                     frames[1].push((da * elevation.cos()).abs().to_degrees());
                     frames[2].push((d.z.clamp(-1.0, 1.0).asin() - elevation).to_degrees());

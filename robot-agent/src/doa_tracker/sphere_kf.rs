@@ -11,6 +11,20 @@
 
 use nalgebra::{Matrix2, Matrix2x4, Matrix4, Matrix4x2, Rotation3, Unit, Vector2, Vector3, Vector4};
 
+/// The log map of unit vector `z` at unit vector `d`: the tangent vector at
+/// `d` (radians, in the basis `(e₁, e₂)`) whose geodesic reaches `z`. Zero
+/// when `z` is `d` or its antipode (no direction is defined there).
+pub fn log_map(d: &Vector3<f64>, (e1, e2): (&Vector3<f64>, &Vector3<f64>), z: &Vector3<f64>) -> Vector2<f64> {
+    let c = d.dot(z).clamp(-1.0, 1.0);
+    let proj = z - d * c;
+    let s = proj.norm();
+    if s < 1e-15 {
+        return Vector2::zeros();
+    }
+    let angle = s.atan2(c);
+    Vector2::new(proj.dot(e1), proj.dot(e2)) * (angle / s)
+}
+
 /// Filter state.
 #[derive(Clone, Debug)]
 pub struct SphereKf {
@@ -88,14 +102,7 @@ impl SphereKf {
 
     /// Tangent residual of measurement `z` (log map at `d`), radians in `(e₁, e₂)`.
     pub fn residual(&self, z: &Vector3<f64>) -> Vector2<f64> {
-        let c = self.d.dot(z).clamp(-1.0, 1.0);
-        let proj = z - self.d * c;
-        let s = proj.norm();
-        if s < 1e-15 {
-            return Vector2::zeros();
-        }
-        let angle = s.atan2(c);
-        Vector2::new(proj.dot(&self.e1), proj.dot(&self.e2)) * (angle / s)
+        log_map(&self.d, (&self.e1, &self.e2), z)
     }
 
     /// The tangent basis `(e₁, e₂)` at `d`.
