@@ -164,10 +164,11 @@
 //! 0.193 → 0.176 m; `two-talkers` 0.159 → 0.149 m), but with robots that
 //! move among several sources it costs detection and adds ghosts
 //! (`cocktail-active`: detection 0.894 → 0.862, ghosts 0.037 → 0.069/s, 3
-//! id switches in 10 runs instead of 0; `crossing`: OSPA 0.410 → 0.419 m):
-//! a moving robot sees a source's elevation change, which a filter that
-//! trusts elevation up to 6× less follows late (merging tracks on the
-//! plain angle instead did not help, so the merges are not the cause).
+//! id switches in 10 runs instead of 0; `crossing`: OSPA 0.410 → 0.419 m).
+//! Why is not known: merging on the plain angle, process variance for the
+//! parallax of the robot's own motion, the azimuth's σ reported apart and
+//! leaving the ReSpeaker 6 unshaped were each tried and none recovered it
+//! (`BENCHMARKS.md`, "Elevation weighed by the array's geometry").
 //! One source and active positioning: no change beyond the sweep's noise.
 //!
 //! Uncertainty: the measurement variance of each track is learnt from its
