@@ -151,6 +151,16 @@ fn run_pipeline(
     }
 }
 
+/// What of the pipeline's output a sweep measures.
+#[derive(Clone, Copy, Debug, PartialEq)]
+enum Output {
+    /// The strongest potential of each frame (single-frame SRP peaks).
+    Strongest,
+    /// The DoA the agent would send: its first reported track (confirmed,
+    /// the most active), in the frames that have one.
+    Reported,
+}
+
 /// The strongest potential's direction (array frame) in every frame after
 /// the first `SKIP_S` for `case` heard by `array`, with (`reflections`) or
 /// without the room's reflections.
@@ -159,6 +169,17 @@ fn frame_directions(
     config: &PipelineConfig,
     case: &Case,
     reflections: bool,
+) -> Vec<Vector3<f64>> {
+    output_directions(array, config, case, reflections, Output::Strongest)
+}
+
+/// [`frame_directions`] for the chosen [`Output`].
+fn output_directions(
+    array: &ArrayGeometry,
+    config: &PipelineConfig,
+    case: &Case,
+    reflections: bool,
+    output: Output,
 ) -> Vec<Vector3<f64>> {
     let (model, mics) = room_and_mics(array, case, reflections);
     let mut rng = ChaCha8Rng::seed_from_u64(case.seed ^ 0x5eed);
@@ -174,10 +195,14 @@ fn frame_directions(
     }
     let mut directions = Vec::new();
     run_pipeline(array, config, &x, |r, t| {
+        let d = match output {
+            Output::Strongest => r.potentials.first().map(|p| p.direction_in_array),
+            Output::Reported => r.reported.first().map(|&i| r.tracks[i].direction_in_array),
+        };
         if t >= SKIP_S
-            && let Some(best) = r.potentials.first()
+            && let Some(d) = d
         {
-            directions.push(best.direction_in_array.into_inner());
+            directions.push(d.into_inner());
         }
     });
     directions
@@ -452,11 +477,15 @@ fn print_corner(
 /// The default pipeline, or for the sweeps that measure experimental
 /// settings: `SOUNDMAP_DIFFUSE_COMPENSATION=1` sets `[srp]
 /// diffuse_compensation`, `SOUNDMAP_SHAPED_NOISE=1` turns `[tracker]
-/// shaped_measurement_noise` on.
+/// shaped_measurement_noise` on, `SOUNDMAP_DIFFUSE_MARGIN=x` sets `[tracker]
+/// diffuse_margin`.
 fn measured_config() -> PipelineConfig {
     let mut config = PipelineConfig::default();
     if let Ok(v) = std::env::var("SOUNDMAP_DIFFUSE_COMPENSATION") {
         config.srp.diffuse_compensation = v.parse().expect("SOUNDMAP_DIFFUSE_COMPENSATION: a number");
+    }
+    if let Ok(v) = std::env::var("SOUNDMAP_DIFFUSE_MARGIN") {
+        config.tracker.diffuse_margin = v.parse().expect("SOUNDMAP_DIFFUSE_MARGIN: a number");
     }
     if let Ok(v) = std::env::var("SOUNDMAP_SHAPED_NOISE") {
         config.tracker.shaped_measurement_noise = v != "0";
@@ -555,6 +584,85 @@ fn error_parts_sweep() {
                 signed(&parts[2]),
                 cell(&parts[3])
             );
+        }
+    }
+}
+
+/// The DoAs the agent reports (its tracker's first reported track) against
+/// the single-frame peaks, on the sweep's cases for the 16-microphone
+/// presets: per case the median error over the frames that have one, then
+/// median / p95 / max over the cases with any (`cases`: how many of the 12),
+/// with the horizontal part and the signed elevation as in
+/// [`error_parts_sweep`], and the share of frames after `SKIP_S` that have
+/// one (smallest and median over cases). `SOUNDMAP_DIFFUSE_MARGIN` sets
+/// `[tracker] diffuse_margin` (see `BENCHMARKS.md`, "Reverberant rooms"):
+/// `cargo test -p soundmap-sim --test hearing_reverb reported_sweep -- --ignored --nocapture`.
+#[test]
+#[ignore = "about a minute; run with --ignored --nocapture"]
+fn reported_sweep() {
+    let config = measured_config();
+    println!(
+        "{:<24} {:>6} {:>10} {:>24} {:>15} {:>17} {:>5} {:>13}",
+        "preset",
+        "RT60",
+        "output",
+        "whole (median/p95/max)",
+        "horizontal",
+        "elevation",
+        "cases",
+        "frames min/med"
+    );
+    for preset in ["16soundsusb-pioneer", "16soundsusb-turtlebot"] {
+        let array = ArrayGeometry::load(preset).unwrap();
+        for (rt60, reflections) in [(0.4, true), (0.65, true), (0.8, true), (0.65, false)] {
+            for output in [Output::Strongest, Output::Reported] {
+                let mut parts: [Vec<f64>; 4] = Default::default();
+                for seed in 1000..1012 {
+                    let case = Case::draw(rt60, seed);
+                    let truth = truth(&case);
+                    let elevation = truth.z.asin();
+                    let ds = output_directions(&array, &config, &case, reflections, output);
+                    let frames_after = ((LEN as f64 / FS - SKIP_S) * FS / config.hop_len as f64).floor();
+                    let mut frames: [Vec<f64>; 3] = Default::default();
+                    for d in &ds {
+                        frames[0].push(d.dot(&truth).clamp(-1.0, 1.0).acos().to_degrees());
+                        frames[1].push((azimuth_error(d, &truth) * elevation.cos()).abs().to_degrees());
+                        frames[2].push((d.z.clamp(-1.0, 1.0).asin() - elevation).to_degrees());
+                    }
+                    for (part, f) in parts.iter_mut().zip(&frames) {
+                        part.push(if f.is_empty() { f64::NAN } else { quantile(f, 0.5) });
+                    }
+                    parts[3].push(ds.len() as f64 / frames_after);
+                }
+                let whole = |v: &[f64]| {
+                    let v: Vec<f64> = v.iter().copied().filter(|x| !x.is_nan()).collect();
+                    format!(
+                        "{:.2}° / {:.2}° / {:.2}°",
+                        quantile(&v, 0.5),
+                        quantile(&v, 0.95),
+                        quantile(&v, 1.0)
+                    )
+                };
+                let cell = |v: &[f64]| {
+                    let v: Vec<f64> = v.iter().copied().filter(|x| !x.is_nan()).collect();
+                    format!("{:.2}° / {:.2}°", quantile(&v, 0.5), quantile(&v, 0.95))
+                };
+                let signed = |v: &[f64]| {
+                    let v: Vec<f64> = v.iter().copied().filter(|x| !x.is_nan()).collect();
+                    format!("{:+.2}° / {:+.2}°", quantile(&v, 0.5), quantile(&v, 0.95))
+                };
+                println!(
+                    "{preset:<24} {:>6} {:>10} {:>24} {:>15} {:>17} {:>5} {:>4.0}% / {:>3.0}%",
+                    if reflections { format!("{rt60:.2} s") } else { "none".into() },
+                    format!("{output:?}"),
+                    whole(&parts[0]),
+                    cell(&parts[1]),
+                    signed(&parts[2]),
+                    parts[0].iter().filter(|x| !x.is_nan()).count(),
+                    100.0 * quantile(&parts[3], 0.0),
+                    100.0 * quantile(&parts[3], 0.5)
+                );
+            }
         }
     }
 }
