@@ -592,8 +592,9 @@ fn error_parts_sweep() {
 /// the single-frame peaks, on the sweep's cases for the 16-microphone
 /// presets: per case the median error over the frames that have one, then
 /// median / p95 / max over the cases with any (`cases`: how many of the 12),
-/// with the horizontal part and the signed elevation as in
-/// [`error_parts_sweep`], and the share of frames after `SKIP_S` that have
+/// with the horizontal part, the signed elevation and the angle to what the
+/// coordinator's floor-image model expects as in [`error_parts_sweep`], and
+/// the share of frames after `SKIP_S` that have
 /// one (smallest and median over cases). `SOUNDMAP_DIFFUSE_MARGIN` sets
 /// `[tracker] diffuse_margin` (see `BENCHMARKS.md`, "Reverberant rooms"):
 /// `cargo test -p soundmap-sim --test hearing_reverb reported_sweep -- --ignored --nocapture`.
@@ -602,37 +603,54 @@ fn error_parts_sweep() {
 fn reported_sweep() {
     let config = measured_config();
     println!(
-        "{:<24} {:>6} {:>10} {:>24} {:>15} {:>17} {:>5} {:>13}",
+        "{:<24} {:>6} {:>10} {:>24} {:>15} {:>17} {:>15} {:>5} {:>13}",
         "preset",
         "RT60",
         "output",
         "whole (median/p95/max)",
         "horizontal",
         "elevation",
+        "vs model",
         "cases",
         "frames min/med"
     );
+    use soundmap_server::floor_image::{FloorFold, array_pattern};
     for preset in ["16soundsusb-pioneer", "16soundsusb-turtlebot"] {
         let array = ArrayGeometry::load(preset).unwrap();
+        let positions: Vec<Point3<f64>> = array.positions().collect();
+        let [lo, hi] = config.srp_band_hz();
+        let pattern = array_pattern(&positions, (lo, hi)).unwrap();
         for (rt60, reflections) in [(0.4, true), (0.65, true), (0.8, true), (0.65, false)] {
             for output in [Output::Strongest, Output::Reported] {
-                let mut parts: [Vec<f64>; 4] = Default::default();
+                let mut parts: [Vec<f64>; 5] = Default::default();
                 for seed in 1000..1012 {
                     let case = Case::draw(rt60, seed);
                     let truth = truth(&case);
                     let elevation = truth.z.asin();
+                    // What the coordinator's floor-image model (as in
+                    // `error_parts_sweep`) expects this array to measure.
+                    let fold = FloorFold {
+                        array_height_m: case.array_at.z,
+                        reflection: 0.6,
+                        lobe: pattern.lobe(None),
+                        ceiling_m: Some(case.size.z),
+                        vertical_spread: None,
+                    };
+                    let modelled = case.rotation().inverse()
+                        * fold.measured_direction(&case.array_at, &case.source).unwrap().into_inner();
                     let ds = output_directions(&array, &config, &case, reflections, output);
                     let frames_after = ((LEN as f64 / FS - SKIP_S) * FS / config.hop_len as f64).floor();
-                    let mut frames: [Vec<f64>; 3] = Default::default();
+                    let mut frames: [Vec<f64>; 4] = Default::default();
                     for d in &ds {
                         frames[0].push(d.dot(&truth).clamp(-1.0, 1.0).acos().to_degrees());
                         frames[1].push((azimuth_error(d, &truth) * elevation.cos()).abs().to_degrees());
                         frames[2].push((d.z.clamp(-1.0, 1.0).asin() - elevation).to_degrees());
+                        frames[3].push(d.dot(&modelled).clamp(-1.0, 1.0).acos().to_degrees());
                     }
                     for (part, f) in parts.iter_mut().zip(&frames) {
                         part.push(if f.is_empty() { f64::NAN } else { quantile(f, 0.5) });
                     }
-                    parts[3].push(ds.len() as f64 / frames_after);
+                    parts[4].push(ds.len() as f64 / frames_after);
                 }
                 let whole = |v: &[f64]| {
                     let v: Vec<f64> = v.iter().copied().filter(|x| !x.is_nan()).collect();
@@ -652,15 +670,16 @@ fn reported_sweep() {
                     format!("{:+.2}° / {:+.2}°", quantile(&v, 0.5), quantile(&v, 0.95))
                 };
                 println!(
-                    "{preset:<24} {:>6} {:>10} {:>24} {:>15} {:>17} {:>5} {:>4.0}% / {:>3.0}%",
+                    "{preset:<24} {:>6} {:>10} {:>24} {:>15} {:>17} {:>15} {:>5} {:>4.0}% / {:>3.0}%",
                     if reflections { format!("{rt60:.2} s") } else { "none".into() },
                     format!("{output:?}"),
                     whole(&parts[0]),
                     cell(&parts[1]),
                     signed(&parts[2]),
+                    if reflections { cell(&parts[3]) } else { "-".into() },
                     parts[0].iter().filter(|x| !x.is_nan()).count(),
-                    100.0 * quantile(&parts[3], 0.0),
-                    100.0 * quantile(&parts[3], 0.5)
+                    100.0 * quantile(&parts[4], 0.0),
+                    100.0 * quantile(&parts[4], 0.5)
                 );
             }
         }
