@@ -27,6 +27,7 @@ use realfft::RealFftPlanner;
 use soundmap_agent::array::ArrayGeometry;
 use soundmap_agent::pipeline::{Pipeline, PipelineConfig};
 use soundmap_proto::Stamp;
+use soundmap_server::floor_image::{ArrayPattern, FloorFold, array_pattern};
 use soundmap_sim::acoustics::{
     RirConfig, RirModel, ShoeboxRoom, SourceSignal, Waveform, direct_path_rms, noise_std_for_snr,
 };
@@ -524,6 +525,41 @@ fn robot_in_a_corner_hears_the_source_and_not_the_noise() {
     assert!(talker.iter().all(|c| c.on_azimuth >= 0.8 && c.astray <= 0.1), "{talker:?}");
 }
 
+/// The coordinator's beam pattern for `array` over the band the agent
+/// declares in its hello (`soundmap_server::floor_image`).
+fn coordinator_pattern(array: &ArrayGeometry, config: &PipelineConfig) -> &'static ArrayPattern {
+    let positions: Vec<Point3<f64>> = array.positions().collect();
+    let [lo, hi] = config.srp_band_hz();
+    array_pattern(&positions, (lo, hi)).unwrap()
+}
+
+/// The direction (array frame) the coordinator's floor-image model, with
+/// its default R = 0.6 and the room's ceiling, expects the array to measure
+/// for `case`'s source.
+fn modelled_direction(pattern: &ArrayPattern, case: &Case) -> Vector3<f64> {
+    let fold = FloorFold {
+        array_height_m: case.array_at.z,
+        reflection: 0.6,
+        lobe: pattern.lobe(None),
+        ceiling_m: Some(case.size.z),
+        vertical_spread: None,
+    };
+    case.rotation().inverse() * fold.measured_direction(&case.array_at, &case.source).unwrap().into_inner()
+}
+
+/// The parts of direction `d`'s error (degrees): the whole angle to
+/// `truth`, its horizontal part (azimuth error × cos of the true
+/// elevation), the signed elevation error, and the angle to `modelled`.
+fn error_parts(d: &Vector3<f64>, truth: &Vector3<f64>, modelled: &Vector3<f64>) -> [f64; 4] {
+    let elevation = truth.z.asin();
+    [
+        d.dot(truth).clamp(-1.0, 1.0).acos().to_degrees(),
+        (azimuth_error(d, truth) * elevation.cos()).abs().to_degrees(),
+        (d.z.clamp(-1.0, 1.0).asin() - elevation).to_degrees(),
+        d.dot(modelled).clamp(-1.0, 1.0).acos().to_degrees(),
+    ]
+}
+
 /// Where the reverberant error lies, for the 16-microphone presets and the
 /// ReSpeaker 6 on the sweep's cases: per case the median over frames of the whole angle, of its
 /// horizontal part (azimuth error × cos of the true elevation), of the signed
@@ -535,7 +571,6 @@ fn robot_in_a_corner_hears_the_source_and_not_the_noise() {
 #[test]
 #[ignore = "about a minute; run with --ignored --nocapture"]
 fn error_parts_sweep() {
-    use soundmap_server::floor_image::{FloorFold, array_pattern};
     let config = measured_config();
     println!(
         "{:<24} {:>6} {:>15} {:>15} {:>17} {:>17}",
@@ -543,32 +578,17 @@ fn error_parts_sweep() {
     );
     for preset in ["16soundsusb-pioneer", "16soundsusb-turtlebot", "respeaker-6"] {
         let array = ArrayGeometry::load(preset).unwrap();
-        let positions: Vec<Point3<f64>> = array.positions().collect();
-        // The band the agent declares in its hello, as the coordinator sees it.
-        let [lo, hi] = config.srp_band_hz();
-        let pattern = array_pattern(&positions, (lo, hi)).unwrap();
+        let pattern = coordinator_pattern(&array, &config);
         for rt60 in [0.4, 0.65, 0.8] {
             let mut parts: [Vec<f64>; 4] = Default::default();
             for seed in 1000..1012 {
                 let case = Case::draw(rt60, seed);
-                let truth = truth(&case);
-                let elevation = truth.z.asin();
-                let fold = FloorFold {
-                    array_height_m: case.array_at.z,
-                    reflection: 0.6,
-                    lobe: pattern.lobe(None),
-                    ceiling_m: Some(case.size.z),
-                    vertical_spread: None,
-                };
-                let modelled = case.rotation().inverse()
-                    * fold.measured_direction(&case.array_at, &case.source).unwrap().into_inner();
+                let (truth, modelled) = (truth(&case), modelled_direction(pattern, &case));
                 let mut frames: [Vec<f64>; 4] = Default::default();
                 for d in frame_directions(&array, &config, &case, true) {
-                    let da = azimuth_error(&d, &truth);
-                    frames[0].push(d.dot(&truth).clamp(-1.0, 1.0).acos().to_degrees());
-                    frames[1].push((da * elevation.cos()).abs().to_degrees());
-                    frames[2].push((d.z.clamp(-1.0, 1.0).asin() - elevation).to_degrees());
-                    frames[3].push(d.dot(&modelled).clamp(-1.0, 1.0).acos().to_degrees());
+                    for (frame, e) in frames.iter_mut().zip(error_parts(&d, &truth, &modelled)) {
+                        frame.push(e);
+                    }
                 }
                 for (part, f) in parts.iter_mut().zip(&frames) {
                     part.push(quantile(f, 0.5));
@@ -614,46 +634,32 @@ fn reported_sweep() {
         "cases",
         "frames min/med"
     );
-    use soundmap_server::floor_image::{FloorFold, array_pattern};
     for preset in ["16soundsusb-pioneer", "16soundsusb-turtlebot"] {
         let array = ArrayGeometry::load(preset).unwrap();
-        let positions: Vec<Point3<f64>> = array.positions().collect();
-        let [lo, hi] = config.srp_band_hz();
-        let pattern = array_pattern(&positions, (lo, hi)).unwrap();
+        let pattern = coordinator_pattern(&array, &config);
         for (rt60, reflections) in [(0.4, true), (0.65, true), (0.8, true), (0.65, false)] {
             for output in [Output::Strongest, Output::Reported] {
                 let mut parts: [Vec<f64>; 5] = Default::default();
                 for seed in 1000..1012 {
                     let case = Case::draw(rt60, seed);
-                    let truth = truth(&case);
-                    let elevation = truth.z.asin();
-                    // What the coordinator's floor-image model (as in
-                    // `error_parts_sweep`) expects this array to measure.
-                    let fold = FloorFold {
-                        array_height_m: case.array_at.z,
-                        reflection: 0.6,
-                        lobe: pattern.lobe(None),
-                        ceiling_m: Some(case.size.z),
-                        vertical_spread: None,
-                    };
-                    let modelled = case.rotation().inverse()
-                        * fold.measured_direction(&case.array_at, &case.source).unwrap().into_inner();
+                    let (truth, modelled) = (truth(&case), modelled_direction(pattern, &case));
                     let ds = output_directions(&array, &config, &case, reflections, output);
                     let frames_after = ((LEN as f64 / FS - SKIP_S) * FS / config.hop_len as f64).floor();
                     let mut frames: [Vec<f64>; 4] = Default::default();
                     for d in &ds {
-                        frames[0].push(d.dot(&truth).clamp(-1.0, 1.0).acos().to_degrees());
-                        frames[1].push((azimuth_error(d, &truth) * elevation.cos()).abs().to_degrees());
-                        frames[2].push((d.z.clamp(-1.0, 1.0).asin() - elevation).to_degrees());
-                        frames[3].push(d.dot(&modelled).clamp(-1.0, 1.0).acos().to_degrees());
+                        for (frame, e) in frames.iter_mut().zip(error_parts(d, &truth, &modelled)) {
+                            frame.push(e);
+                        }
                     }
                     for (part, f) in parts.iter_mut().zip(&frames) {
                         part.push(if f.is_empty() { f64::NAN } else { quantile(f, 0.5) });
                     }
                     parts[4].push(ds.len() as f64 / frames_after);
                 }
+                // Cases without a reported track (NaN) are left out.
+                let heard = |v: &[f64]| v.iter().copied().filter(|x| !x.is_nan()).collect::<Vec<f64>>();
                 let whole = |v: &[f64]| {
-                    let v: Vec<f64> = v.iter().copied().filter(|x| !x.is_nan()).collect();
+                    let v = heard(v);
                     format!(
                         "{:.2}° / {:.2}° / {:.2}°",
                         quantile(&v, 0.5),
@@ -662,11 +668,11 @@ fn reported_sweep() {
                     )
                 };
                 let cell = |v: &[f64]| {
-                    let v: Vec<f64> = v.iter().copied().filter(|x| !x.is_nan()).collect();
+                    let v = heard(v);
                     format!("{:.2}° / {:.2}°", quantile(&v, 0.5), quantile(&v, 0.95))
                 };
                 let signed = |v: &[f64]| {
-                    let v: Vec<f64> = v.iter().copied().filter(|x| !x.is_nan()).collect();
+                    let v = heard(v);
                     format!("{:+.2}° / {:+.2}°", quantile(&v, 0.5), quantile(&v, 0.95))
                 };
                 println!(
@@ -677,7 +683,7 @@ fn reported_sweep() {
                     cell(&parts[1]),
                     signed(&parts[2]),
                     if reflections { cell(&parts[3]) } else { "-".into() },
-                    parts[0].iter().filter(|x| !x.is_nan()).count(),
+                    heard(&parts[0]).len(),
                     100.0 * quantile(&parts[4], 0.0),
                     100.0 * quantile(&parts[4], 0.5)
                 );
