@@ -63,3 +63,39 @@ fn bad_scenarios_name_the_file_and_key() {
     let e = Scenario::load("no-such-scenario").unwrap_err().to_string();
     assert!(e.contains("no-such-scenario") && e.contains("paper-static"), "{e}");
 }
+
+/// A recording is replayed with the settings it ran with: the scenario's own
+/// `[coordinator]` tables (here `[sources] max_sources`, without which a
+/// replay of several sources follows one) and the room's ceiling in
+/// `coordinator.toml`, and its `[agent]` tables in `pipeline.toml`, both read
+/// back by the loaders `soundmap-sim replay` uses.
+#[test]
+fn replay_settings_carry_the_scenarios_own_tables() {
+    use soundmap_sim::runner::{write_replay_config, write_replay_pipeline};
+    let dir = std::env::temp_dir().join(format!("soundmap-sim-replay-settings-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+
+    let plain = Scenario::load("smoke").unwrap();
+    assert!(write_replay_pipeline(&dir, &plain).unwrap().is_none(), "no [agent] table, no pipeline file");
+    let config =
+        soundmap_server::CoordinatorConfig::from_file(&write_replay_config(&dir, &plain).unwrap()).unwrap();
+    assert_eq!(config.doa.ceiling_height_m, Some(plain.room.size_m[2]));
+    assert_eq!(config.sources.max_sources, 1);
+
+    let text = format!(
+        "{}\n[agent.tracker]\nshaped_measurement_noise = true\nmax_coast_s = 2.5\n",
+        builtin::text("cocktail").unwrap()
+    );
+    let cocktail = Scenario::from_toml(&text, "cocktail.toml").unwrap();
+    let config =
+        soundmap_server::CoordinatorConfig::from_file(&write_replay_config(&dir, &cocktail).unwrap())
+            .unwrap();
+    assert_eq!(config.sources.max_sources, cocktail.coordinator.sources.max_sources);
+    assert_eq!(config.sources.max_sources, 4);
+    assert_eq!(config.doa.ceiling_height_m, Some(cocktail.room.size_m[2]));
+    let path = write_replay_pipeline(&dir, &cocktail).unwrap().expect("a pipeline file");
+    let pipeline = soundmap_agent::config::load_pipeline(&path).unwrap();
+    assert!(pipeline.tracker.shaped_measurement_noise);
+    assert_eq!(pipeline.tracker.max_coast_s, 2.5);
+    let _ = std::fs::remove_dir_all(&dir);
+}

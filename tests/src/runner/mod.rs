@@ -45,7 +45,9 @@ pub struct RunOptions {
     /// Overrides whether active positioning is on.
     pub active_positioning: Option<bool>,
     /// Writes the run as a recorded trial (WAV + TUM per robot, a TUM per source:
-    /// `source.tum` for source 0, `source-K.tum` for source K ≥ 1) into this directory.
+    /// `source.tum` for source 0, `source-K.tum` for source K ≥ 1) into this
+    /// directory, with `replay-command.txt` and the settings it names
+    /// ([`REPLAY_CONFIG`], and [`REPLAY_PIPELINE`] when the scenario sets `[agent]`).
     pub record_dir: Option<PathBuf>,
     /// Shows a progress bar on the terminal.
     pub progress: bool,
@@ -346,16 +348,51 @@ pub fn ceiling_height_m(scenario: &Scenario) -> f64 {
     scenario.coordinator.doa.ceiling_height_m.unwrap_or(scenario.room.size_m[2])
 }
 
-/// Writes [`REPLAY_CONFIG`] into `dir`: the coordinator settings the simulator
-/// adds to the scenario's (the room's ceiling), for replays; returns its path.
+/// Writes [`REPLAY_CONFIG`] into `dir`: the scenario's own `[coordinator]`
+/// settings and the ones the simulator adds (the room's ceiling, unless the
+/// scenario sets it), for replays; returns its path.
 pub fn write_replay_config(dir: &std::path::Path, scenario: &Scenario) -> Result<PathBuf, SimError> {
-    let config = dir.join(REPLAY_CONFIG);
-    let text = format!(
-        "# the simulated room's ceiling (floor-image model)\n[doa]\nceiling_height_m = {}\n",
-        ceiling_height_m(scenario)
-    );
-    std::fs::write(&config, text).map_err(|e| SimError::file(&config, e))?;
-    Ok(config)
+    let mut table = scenario.overrides.coordinator.clone();
+    let doa = table.entry("doa").or_insert_with(|| toml::Value::Table(toml::Table::new()));
+    if let toml::Value::Table(doa) = doa {
+        doa.insert("ceiling_height_m".into(), toml::Value::Float(ceiling_height_m(scenario)));
+    }
+    write_table(
+        dir,
+        REPLAY_CONFIG,
+        "the scenario's [coordinator] settings and the simulated room's ceiling",
+        &table,
+    )
+}
+
+/// Writes [`REPLAY_PIPELINE`] into `dir` when the scenario sets the agents'
+/// pipeline (`[agent]`), for replays; returns its path.
+pub fn write_replay_pipeline(
+    dir: &std::path::Path,
+    scenario: &Scenario,
+) -> Result<Option<PathBuf>, SimError> {
+    let table = &scenario.overrides.agent;
+    if table.is_empty() {
+        return Ok(None);
+    }
+    write_table(dir, REPLAY_PIPELINE, "the scenario's [agent] settings (the agents' pipeline)", table)
+        .map(Some)
+}
+
+/// The agents' pipeline settings a recording is replayed with, when the
+/// scenario sets any (in the recording's directory).
+pub const REPLAY_PIPELINE: &str = "pipeline.toml";
+
+fn write_table(
+    dir: &std::path::Path,
+    name: &str,
+    what: &str,
+    table: &toml::Table,
+) -> Result<PathBuf, SimError> {
+    let path = dir.join(name);
+    let body = toml::to_string(table).map_err(|e| SimError::file(&path, std::io::Error::other(e)))?;
+    std::fs::write(&path, format!("# {what}\n{body}")).map_err(|e| SimError::file(&path, e))?;
+    Ok(path)
 }
 
 /// Writes `replay-command.txt`, the `soundmap-sim replay` call that replays the
@@ -375,6 +412,9 @@ fn write_replay_command(dir: &std::path::Path, scenario: &Scenario) -> Result<()
     }
     let config = write_replay_config(dir, scenario)?;
     cmd.push_str(&format!(" \\\n  --coordinator-config {}", config.display()));
+    if let Some(pipeline) = write_replay_pipeline(dir, scenario)? {
+        cmd.push_str(&format!(" \\\n  --pipeline {}", pipeline.display()));
+    }
     cmd.push_str(" \\\n  --out OUT\n");
     let path = dir.join("replay-command.txt");
     std::fs::write(&path, cmd).map_err(|e| SimError::file(path, e))

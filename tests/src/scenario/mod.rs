@@ -53,6 +53,19 @@ pub struct Scenario {
     /// `[doa] ceiling_height_m` defaults to the room's height.
     #[serde(default)]
     pub coordinator: CoordinatorConfig,
+    /// The `[agent]` and `[coordinator]` tables as written in the scenario,
+    /// for the configuration files a recording is replayed with.
+    #[serde(skip)]
+    pub overrides: Overrides,
+}
+
+/// A scenario's own `[agent]` and `[coordinator]` tables (empty when absent).
+#[derive(Clone, Debug, Default)]
+pub struct Overrides {
+    /// `[agent]`: the agents' pipeline settings.
+    pub agent: toml::Table,
+    /// `[coordinator]`: the coordinator's settings.
+    pub coordinator: toml::Table,
 }
 
 fn default_seed() -> u64 {
@@ -331,7 +344,7 @@ impl Scenario {
         let err = |field: String, message: String| SimError::Scenario { path: origin.into(), field, message };
         let de = toml::Deserializer::parse(text)
             .map_err(|e| err("(document)".into(), e.to_string().trim().replace('\n', " ")))?;
-        let scenario: Scenario = serde_path_to_error::deserialize(de).map_err(|e| {
+        let mut scenario: Scenario = serde_path_to_error::deserialize(de).map_err(|e| {
             let at = e.path().to_string();
             let message = e.into_inner().message().to_string();
             // A missing key is named itself, not its table.
@@ -344,6 +357,14 @@ impl Scenario {
             }
         })?;
         scenario.validate(origin)?;
+        // The text parsed above as a scenario is valid TOML.
+        if let Ok(mut raw) = toml::from_str::<toml::Table>(text) {
+            let mut table = |key: &str| match raw.remove(key) {
+                Some(toml::Value::Table(t)) => t,
+                _ => toml::Table::new(),
+            };
+            scenario.overrides = Overrides { agent: table("agent"), coordinator: table("coordinator") };
+        }
         Ok(scenario)
     }
 
