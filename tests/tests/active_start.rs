@@ -6,6 +6,10 @@
 //! seeds 1–20 of each (and of `active-moving`) and prints the table of
 //! BENCHMARKS.md:
 //! `cargo test -p soundmap-sim --test active_start -- --ignored --nocapture`.
+//! With `SOUNDMAP_SWEEP_VERBOSE=1` it also prints, per run, every goal issued
+//! within the keep-out of the true source and every stretch after
+//! convergence where the true θ left the band (with how far each robot drove
+//! and turned, and the commands issued around it).
 
 use soundmap_sim::report::derived::Derived;
 use soundmap_sim::report::{RunRecord, Summary, distinct_smoothed_states};
@@ -202,7 +206,7 @@ fn sweep_over_seeds() {
         println!("|---|---|---|---|---|---|");
         let mut rows = Vec::new();
         for seed in 1..=seeds {
-            let (_, _, f) = run_seed(name, Some(seed));
+            let (scenario, record, f) = run_seed(name, Some(seed));
             println!(
                 "| {seed} | {} | {} | {} | {} | {} ({}) |",
                 show(f.first_position_s, 1.0, " s"),
@@ -216,6 +220,9 @@ fn sweep_over_seeds() {
             if std::env::var_os("SOUNDMAP_SWEEP_VERBOSE").is_some() {
                 for g in &f.unsafe_goals {
                     println!("    unsafe: {g}");
+                }
+                for e in out_of_band_episodes(&scenario, &record) {
+                    println!("    out of band: {e}");
                 }
             }
             let start_targets = *name != "active-moving" && *name != "fast-walker";
@@ -233,6 +240,72 @@ fn sweep_over_seeds() {
         summarize(&rows);
     }
     assert!(failures.is_empty(), "targets missed: {failures:?}");
+}
+
+/// The stretches after convergence where the true θ left the band (at least
+/// 0.3 s of weighted time), each with what the robots, the source, the
+/// estimate and the planner were doing: for `SOUNDMAP_SWEEP_VERBOSE`.
+fn out_of_band_episodes(scenario: &Scenario, record: &RunRecord) -> Vec<String> {
+    let d = Derived::new(record);
+    let Some(k) = d.in_band.iter().position(|b| *b) else { return Vec::new() };
+    let mut out = Vec::new();
+    let mut i = k;
+    while i < record.rows.len() {
+        if d.in_band[i] {
+            i += 1;
+            continue;
+        }
+        let j = (i..record.rows.len()).find(|&j| d.in_band[j]).unwrap_or(record.rows.len());
+        let time: f64 = d.weights_s[i..j].iter().sum();
+        if time >= 0.3 {
+            let (t0, t1) = (record.rows[i].t_s, record.rows[j - 1].t_s);
+            let th = &d.theta_deg[i..j];
+            let pub_th: Vec<f64> = record.rows[i..j].iter().map(|r| r.theta_deg).collect();
+            let rse = d.rse_m[i..j].iter().flatten().fold(0.0f64, |a, b| a.max(*b));
+            let near = record.rows[i..j]
+                .iter()
+                .flat_map(|r| r.distances_m.iter().copied())
+                .fold(f64::INFINITY, f64::min);
+            let speed = {
+                let (a, b) = (scenario.sources[0].position_at(t0), scenario.sources[0].position_at(t0 + 0.5));
+                (b - a).xy().norm() / 0.5
+            };
+            let cmds: Vec<String> = record
+                .commands
+                .iter()
+                .filter(|c| c.0 >= t0 - 3.0 && c.0 <= t1)
+                .map(|c| format!("{:.1} {} {}", c.0, c.1, c.2.split(':').next().unwrap_or("")))
+                .collect();
+            let motion: Vec<String> = record
+                .robots
+                .iter()
+                .map(|r| {
+                    let within: Vec<_> = r.samples.iter().filter(|s| s.0 >= t0 - 1.0 && s.0 <= t1).collect();
+                    let (mut dist, mut turn) = (0.0, 0.0);
+                    for w in within.windows(2) {
+                        dist += (w[1].1 - w[0].1).hypot(w[1].2 - w[0].2);
+                        let d = w[1].3 - w[0].3;
+                        turn += d.sin().atan2(d.cos()).abs();
+                    }
+                    format!("{} drove {dist:.2} m, turned {:.0}°", r.id, turn.to_degrees())
+                })
+                .collect();
+            let minmax = |v: &[f64]| {
+                let lo = v.iter().copied().fold(f64::INFINITY, f64::min);
+                let hi = v.iter().copied().fold(f64::NEG_INFINITY, f64::max);
+                format!("{lo:.0}–{hi:.0}°")
+            };
+            out.push(format!(
+                "{t0:.1}–{t1:.1} s ({time:.1} s): true θ {}, published θ {}, RSE ≤ {rse:.2} m, nearest robot {near:.2} m, source {speed:.2} m/s; from 1 s before: {}; commands from 3 s before: {}",
+                minmax(th),
+                minmax(&pub_th),
+                motion.join(", "),
+                if cmds.is_empty() { "none".to_string() } else { cmds.join("; ") }
+            ));
+        }
+        i = j;
+    }
+    out
 }
 
 fn summarize(rows: &[Figures]) {
