@@ -11,6 +11,7 @@
 //! convergence where the true θ left the band (with how far each robot drove
 //! and turned, and the commands issued around it).
 
+use soundmap_sim::kinematics::wrap_angle;
 use soundmap_sim::report::derived::Derived;
 use soundmap_sim::report::{RunRecord, Summary, distinct_smoothed_states};
 use soundmap_sim::runner::{RunOptions, run};
@@ -284,8 +285,7 @@ fn out_of_band_episodes(scenario: &Scenario, record: &RunRecord) -> Vec<String> 
                     let (mut dist, mut turn) = (0.0, 0.0);
                     for w in within.windows(2) {
                         dist += (w[1].1 - w[0].1).hypot(w[1].2 - w[0].2);
-                        let d = w[1].3 - w[0].3;
-                        turn += d.sin().atan2(d.cos()).abs();
+                        turn += wrap_angle(w[1].3 - w[0].3).abs();
                     }
                     format!("{} drove {dist:.2} m, turned {:.0}°", r.id, turn.to_degrees())
                 })
