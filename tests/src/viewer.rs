@@ -26,7 +26,9 @@ pub struct ViewArgs {
     /// Pace the run to wall-clock time (simulated seconds take real seconds).
     #[arg(long)]
     pub realtime: bool,
-    /// Record the live view's channels and the raw soundmap.v1 messages to this MCAP file.
+    /// Record the live view's channels and the raw soundmap.v1 messages to this
+    /// MCAP file. A simulated run also writes the coordinator settings to replay
+    /// it with beside it, as FILE.coordinator.toml (`replay-mcap --config`).
     #[arg(long, value_name = "FILE.mcap")]
     pub mcap: Option<PathBuf>,
 }

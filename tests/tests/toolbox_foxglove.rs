@@ -144,8 +144,11 @@ fn live_view_and_recording_change_nothing_and_replay_mcap_reproduces_the_run() {
     assert!(rec["observation"]["doas"].as_u64().unwrap() >= 1);
 
     // replay-mcap: the same estimates, scored against the recorded truth, with
-    // the coordinator settings the simulator used (the room's ceiling).
-    let config = soundmap_sim::runner::write_replay_config(&dir, &scenario).unwrap();
+    // the coordinator settings the run wrote beside its recording (the room's ceiling).
+    let config = soundmap_sim::runner::mcap_replay_config(&mcap);
+    assert_eq!(config, dir.join("run.coordinator.toml"));
+    let written = std::fs::read_to_string(&config).unwrap();
+    assert!(written.contains("ceiling_height_m"), "{written}");
     let args = ReplayMcapArgs {
         file: mcap.clone(),
         out: dir.join("replayed"),

@@ -306,6 +306,9 @@ impl<'a> Sim<'a> {
             }
             write_replay_command(dir, scenario)?;
         }
+        if let Some(mcap) = &self.options.view.mcap {
+            write_replay_config_to(&mcap_replay_config(mcap), scenario)?;
+        }
         let duration_s = blocks as f64 * BLOCK_LEN as f64 / self.fs as f64;
         let a = &scenario.active_positioning;
         Ok(RunRecord {
@@ -352,17 +355,24 @@ pub fn ceiling_height_m(scenario: &Scenario) -> f64 {
 /// settings and the ones the simulator adds (the room's ceiling, unless the
 /// scenario sets it), for replays; returns its path.
 pub fn write_replay_config(dir: &std::path::Path, scenario: &Scenario) -> Result<PathBuf, SimError> {
+    write_replay_config_to(&dir.join(REPLAY_CONFIG), scenario)
+}
+
+/// Writes the coordinator configuration of [`write_replay_config`] to `path`.
+fn write_replay_config_to(path: &std::path::Path, scenario: &Scenario) -> Result<PathBuf, SimError> {
     let mut table = scenario.overrides.coordinator.clone();
     let doa = table.entry("doa").or_insert_with(|| toml::Value::Table(toml::Table::new()));
     if let toml::Value::Table(doa) = doa {
         doa.insert("ceiling_height_m".into(), toml::Value::Float(ceiling_height_m(scenario)));
     }
-    write_table(
-        dir,
-        REPLAY_CONFIG,
-        "the scenario's [coordinator] settings and the simulated room's ceiling",
-        &table,
-    )
+    write_table(path, "the scenario's [coordinator] settings and the simulated room's ceiling", &table)
+}
+
+/// Where a run recorded to `mcap` (`--mcap FILE.mcap`) writes the coordinator
+/// configuration to replay it with (`replay-mcap --config`): beside it, as
+/// `FILE.coordinator.toml`.
+pub fn mcap_replay_config(mcap: &std::path::Path) -> PathBuf {
+    mcap.with_extension(REPLAY_CONFIG)
 }
 
 /// Writes [`REPLAY_PIPELINE`] into `dir` when the scenario sets the agents'
@@ -375,7 +385,7 @@ pub fn write_replay_pipeline(
     if table.is_empty() {
         return Ok(None);
     }
-    write_table(dir, REPLAY_PIPELINE, "the scenario's [agent] settings (the agents' pipeline)", table)
+    write_table(&dir.join(REPLAY_PIPELINE), "the scenario's [agent] settings (the agents' pipeline)", table)
         .map(Some)
 }
 
@@ -383,13 +393,8 @@ pub fn write_replay_pipeline(
 /// scenario sets any (in the recording's directory).
 pub const REPLAY_PIPELINE: &str = "pipeline.toml";
 
-fn write_table(
-    dir: &std::path::Path,
-    name: &str,
-    what: &str,
-    table: &toml::Table,
-) -> Result<PathBuf, SimError> {
-    let path = dir.join(name);
+fn write_table(path: &std::path::Path, what: &str, table: &toml::Table) -> Result<PathBuf, SimError> {
+    let path = path.to_path_buf();
     let body = toml::to_string(table).map_err(|e| SimError::file(&path, std::io::Error::other(e)))?;
     std::fs::write(&path, format!("# {what}\n{body}")).map_err(|e| SimError::file(&path, e))?;
     Ok(path)
