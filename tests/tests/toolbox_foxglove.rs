@@ -38,7 +38,8 @@ fn live_view_and_recording_change_nothing_and_replay_mcap_reproduces_the_run() {
 
     // The same run, watched live (paced to wall-clock time) and recorded.
     let addr = free_port();
-    let mcap = dir.join("run.mcap");
+    // In a directory that does not exist yet: the recording makes it.
+    let mcap = dir.join("rec/run.mcap");
     let url = format!("ws://{addr}");
     // The Python environment first: built inside the watcher's thread, it can
     // take longer than the 4 s run on a loaded machine, and the client would
@@ -146,7 +147,7 @@ fn live_view_and_recording_change_nothing_and_replay_mcap_reproduces_the_run() {
     // replay-mcap: the same estimates, scored against the recorded truth, with
     // the coordinator settings the run wrote beside its recording (the room's ceiling).
     let config = soundmap_sim::runner::mcap_replay_config(&mcap);
-    assert_eq!(config, dir.join("run.coordinator.toml"));
+    assert_eq!(config, dir.join("rec/run.coordinator.toml"));
     let written = std::fs::read_to_string(&config).unwrap();
     assert!(written.contains("ceiling_height_m"), "{written}");
     let args = ReplayMcapArgs {

@@ -100,7 +100,8 @@ impl FoxgloveConfig {
 #[serde(deny_unknown_fields, default)]
 pub struct RecordConfig {
     /// Write the live view's channels and the raw `soundmap.v1` messages to this
-    /// MCAP file (replaced if it exists). None (default): no recording.
+    /// MCAP file (replaced if it exists; its directory is made if missing).
+    /// None (default): no recording.
     pub mcap: Option<PathBuf>,
 }
 
@@ -175,6 +176,10 @@ impl Viz {
         let mcap = match &record.mcap {
             Some(path) => {
                 let io = |source| ServerError::Io { path: path.clone(), source };
+                // Its directory is made as an output directory would be.
+                if let Some(dir) = path.parent().filter(|d| !d.as_os_str().is_empty()) {
+                    std::fs::create_dir_all(dir).map_err(io)?;
+                }
                 let file = std::fs::File::create(path).map_err(io)?;
                 let writer = ctx
                     .mcap_writer_with_options(foxglove::McapWriteOptions::default().profile(""))
