@@ -164,15 +164,20 @@ impl Planner {
             self.cadence.retasked(now);
             return PlanOutcome::Planned(escapes);
         }
-        if let Some(wait_s) = self.cadence.retask_wait_s(now) {
-            return PlanOutcome::Hold(HoldReason::NotDue { wait_s });
-        }
         let cfg = &self.config;
         let s = &input.source;
+        // A precise estimate of a moving source shortens the re-tasking period
+        // (`cadence`, "Following a walker").
+        let speed = s.velocity_in_map.map_or(0.0, |v| v.x.hypot(v.y));
+        let sigma_h = escape::horizontal_sigma_m(&s.covariance_m2);
+        let period = cfg.retask_period_s(speed, sigma_h);
+        if let Some(wait_s) = self.cadence.retask_wait_for_s(now, period) {
+            return PlanOutcome::Hold(HoldReason::NotDue { wait_s });
+        }
         let src = s.predicted(cfg.source_lead_s);
         let centre = Point2::new(src.x, src.y);
         let robots = &input.robots;
-        let step = cfg.step_m();
+        let step = cfg.step_for_period_m(period);
 
         let now_sensors: Vec<Sensor> = robots
             .iter()

@@ -456,6 +456,45 @@ fn busy_robots_keep_their_goals_and_replanning_is_rate_limited() {
     }
 }
 
+/// A walker the estimate follows closely is re-planned for once it has walked
+/// `follow_retask_travel_m`, before the full period; a vague estimate, a slow
+/// source, or the option off, waits the period.
+#[test]
+fn a_precise_walker_is_re_planned_for_sooner() {
+    let (src, robots) = side_by_side();
+    let walker = |speed: f64, sigma: f64| PlannerInput {
+        source: SourceEstimate {
+            position_in_map: src,
+            covariance_m2: nalgebra::Matrix3::from_diagonal(&Vector3::new(
+                sigma * sigma,
+                sigma * sigma,
+                0.01,
+            )),
+            velocity_in_map: Some(Vector3::new(0.0, speed, 0.0)),
+        },
+        robots: robots.clone(),
+        others: vec![],
+    };
+    let wait_after = |cfg: &PlannerConfig, speed: f64, sigma: f64, t: f64| {
+        let mut planner = Planner::new(cfg.clone()).unwrap();
+        planned(planner.plan(Stamp::ZERO, &walker(speed, sigma)));
+        match planner.plan(Stamp::from_secs_f64(t), &walker(speed, sigma)) {
+            PlanOutcome::Hold(HoldReason::NotDue { wait_s }) => Some(wait_s),
+            _ => None,
+        }
+    };
+    let mut cfg = room_config();
+    cfg.follow_retask_travel_m = 0.5;
+    // 1 m/s and σ_h 5 cm: due after 0.5 s.
+    assert!((wait_after(&cfg, 1.0, 0.05, 0.3).unwrap() - 0.2).abs() < 1e-6);
+    assert_eq!(wait_after(&cfg, 1.0, 0.05, 0.5), None);
+    // σ_h 0.3 m, or 0.3 m/s: the whole second.
+    assert!((wait_after(&cfg, 1.0, 0.3, 0.6).unwrap() - 0.4).abs() < 1e-6);
+    assert!((wait_after(&cfg, 0.3, 0.05, 0.6).unwrap() - 0.4).abs() < 1e-6);
+    cfg.follow_retask_travel_m = 0.0;
+    assert!((wait_after(&cfg, 1.0, 0.05, 0.6).unwrap() - 0.4).abs() < 1e-6);
+}
+
 /// A walker comes up to a robot between re-taskings: that robot is sent out
 /// of the keep-out at once (not one step, not after the re-tasking clock),
 /// beside the walker's path rather than ahead on it, and nobody else moves.

@@ -9,7 +9,9 @@
 //! With `SOUNDMAP_SWEEP_VERBOSE=1` it also prints, per run, every goal issued
 //! within the keep-out of the true source and every stretch after
 //! convergence where the true θ left the band (with how far each robot drove
-//! and turned, and the commands issued around it).
+//! and turned, and the commands issued around it). `SOUNDMAP_SWEEP_ONLY=a,b`
+//! runs only those scenarios, `SOUNDMAP_SWEEP_SEEDS=N` N seeds, and
+//! `SOUNDMAP_SWEEP_FIRST_SEED=K` starts at seed K (e.g. 21 for a second set).
 
 use soundmap_sim::kinematics::wrap_angle;
 use soundmap_sim::report::derived::Derived;
@@ -196,6 +198,9 @@ fn robot_against_a_wall() {
 #[ignore = "100+ simulated minutes; run on demand for the figures in BENCHMARKS.md"]
 fn sweep_over_seeds() {
     let seeds: u64 = std::env::var("SOUNDMAP_SWEEP_SEEDS").ok().and_then(|s| s.parse().ok()).unwrap_or(20);
+    // Seeds `first..first + seeds` (a second set of seeds to tell a change from the loop's scatter).
+    let first: u64 =
+        std::env::var("SOUNDMAP_SWEEP_FIRST_SEED").ok().and_then(|s| s.parse().ok()).unwrap_or(1);
     let names =
         ["corner-start", "corner-start-3", "far-source", "fast-walker", "deaf-near-wall", "active-moving"];
     let only = std::env::var("SOUNDMAP_SWEEP_ONLY").ok();
@@ -206,7 +211,7 @@ fn sweep_over_seeds() {
         );
         println!("|---|---|---|---|---|---|");
         let mut rows = Vec::new();
-        for seed in 1..=seeds {
+        for seed in first..first + seeds {
             let (scenario, record, f) = run_seed(name, Some(seed));
             println!(
                 "| {seed} | {} | {} | {} | {} | {} ({}) |",

@@ -73,6 +73,16 @@ pub struct PlannerConfig {
     pub robot_speed_m_per_s: f64,
     /// Shortest time between two re-taskings (s). Default 1.0: a walking source (0.5 m/s) moves half a metre between re-taskings.
     pub planning_period_s: f64,
+    /// Re-tasking that follows a moving source (`planner::cadence`): while the
+    /// estimate is precise (largest horizontal 1-σ at most
+    /// `follow_retask_max_sigma_m`), goals are re-issued as soon as the source
+    /// is predicted to have moved this far (m) since the last ones, but not
+    /// sooner than half of `planning_period_s`; the step shrinks with the
+    /// period. 0: always `planning_period_s`. Default 0.5 (m).
+    pub follow_retask_travel_m: f64,
+    /// The largest horizontal 1-σ (m) of an estimate whose motion shortens
+    /// the re-tasking period (see `follow_retask_travel_m`). Default 0.15.
+    pub follow_retask_max_sigma_m: f64,
     /// Robot footprint radius (m). Default 0.25.
     pub robot_radius_m: f64,
     /// Extra margin to walls and obstacles beyond the radius (m). Default 0.1.
@@ -143,6 +153,8 @@ impl Default for PlannerConfig {
             max_step_m: 1.0,
             robot_speed_m_per_s: 0.5,
             planning_period_s: 1.0,
+            follow_retask_travel_m: 0.5,
+            follow_retask_max_sigma_m: 0.15,
             robot_radius_m: 0.25,
             clearance_m: 0.1,
             wedge_half_width_deg: 15.0,
@@ -181,7 +193,26 @@ impl PlannerConfig {
     /// (a robot that reaches each waypoint stops and restarts, and falls behind
     /// a walking source), capped at `max_step_m`.
     pub fn step_m(&self) -> f64 {
-        self.max_step_m.min(1.5 * self.robot_speed_m_per_s * self.planning_period_s)
+        self.step_for_period_m(self.planning_period_s)
+    }
+
+    /// The step for a re-tasking period of `period_s` (see [`Self::step_m`]).
+    pub fn step_for_period_m(&self, period_s: f64) -> f64 {
+        self.max_step_m.min(1.5 * self.robot_speed_m_per_s * period_s)
+    }
+
+    /// The re-tasking period for a source moving at `speed_m_per_s`
+    /// horizontally whose estimate's largest horizontal 1-σ is `sigma_h_m`
+    /// (see `follow_retask_travel_m`).
+    pub fn retask_period_s(&self, speed_m_per_s: f64, sigma_h_m: f64) -> f64 {
+        let p = self.planning_period_s;
+        if !(self.follow_retask_travel_m > 0.0
+            && sigma_h_m <= self.follow_retask_max_sigma_m
+            && speed_m_per_s > 0.0)
+        {
+            return p;
+        }
+        (self.follow_retask_travel_m / speed_m_per_s).clamp(0.5 * p, p)
     }
 
     /// Robot radius plus margin: distance kept from walls and obstacles (m).
@@ -216,6 +247,8 @@ impl PlannerConfig {
         let non_negative = [
             ("min_separation_m", self.min_separation_m),
             ("keep_out_margin_m", self.keep_out_margin_m),
+            ("follow_retask_travel_m", self.follow_retask_travel_m),
+            ("follow_retask_max_sigma_m", self.follow_retask_max_sigma_m),
             ("robot_radius_m", self.robot_radius_m),
             ("clearance_m", self.clearance_m),
             ("improvement_threshold", self.improvement_threshold),
@@ -315,6 +348,23 @@ mod tests {
         PlannerConfig::default().validate().unwrap();
         // 1.5 × 0.5 m/s × 1 s, under the 1 m cap.
         assert!((PlannerConfig::default().step_m() - 0.75).abs() < 1e-12);
+    }
+
+    #[test]
+    fn retasking_follows_a_precise_moving_source() {
+        let c = PlannerConfig { follow_retask_travel_m: 0.5, ..Default::default() };
+        // A still or slow source, or a vague estimate: the configured period.
+        assert_eq!(c.retask_period_s(0.0, 0.05), 1.0);
+        assert_eq!(c.retask_period_s(0.4, 0.05), 1.0); // 0.5 m at 0.4 m/s: 1.25 s, capped
+        assert_eq!(c.retask_period_s(1.0, 0.2), 1.0);
+        // 0.5 m of travel: 0.625 s at 0.8 m/s, never under half the period.
+        assert!((c.retask_period_s(0.8, 0.05) - 0.625).abs() < 1e-12);
+        assert_eq!(c.retask_period_s(3.0, 0.05), 0.5);
+        assert!((c.step_for_period_m(0.625) - 0.46875).abs() < 1e-12);
+        let off = PlannerConfig { follow_retask_travel_m: 0.0, ..Default::default() };
+        assert_eq!(off.retask_period_s(3.0, 0.05), 1.0);
+        assert_eq!(c.retask_period_s(f64::NAN, 0.05), 1.0);
+        assert_eq!(c.retask_period_s(1.0, f64::NAN), 1.0);
     }
 
     #[test]

@@ -178,7 +178,8 @@ impl Viz {
                 let io = |source| ServerError::Io { path: path.clone(), source };
                 // Its directory is made as an output directory would be.
                 if let Some(dir) = path.parent().filter(|d| !d.as_os_str().is_empty()) {
-                    std::fs::create_dir_all(dir).map_err(io)?;
+                    std::fs::create_dir_all(dir)
+                        .map_err(|source| ServerError::Io { path: dir.to_path_buf(), source })?;
                 }
                 let file = std::fs::File::create(path).map_err(io)?;
                 let writer = ctx
