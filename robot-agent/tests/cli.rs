@@ -2,8 +2,7 @@
 //! recordings, `run` against a fake coordinator on loopback, and the errors a
 //! user sees.
 
-#[path = "data/synth.rs"]
-mod synth;
+use crate::synth;
 
 use std::io::Write;
 use std::path::{Path, PathBuf};

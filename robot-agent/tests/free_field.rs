@@ -4,8 +4,7 @@
 //! noise. Errors are per frame (the strongest potential of each frame), not
 //! tracked. Run with `--nocapture` to see the figures.
 
-#[path = "data/synth.rs"]
-mod synth;
+use crate::synth;
 
 use soundmap_agent::array::{ArrayGeometry, presets};
 use soundmap_agent::pipeline::{Pipeline, PipelineConfig};

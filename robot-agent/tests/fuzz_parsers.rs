@@ -5,8 +5,8 @@
 //! must end (no endless loop on a broken header).
 //!
 //! ```sh
-//! cargo test -p soundmap-agent --test fuzz_parsers
-//! PROPTEST_CASES=5000 cargo test --release -p soundmap-agent --test fuzz_parsers   # longer
+//! cargo test -p soundmap-agent --test integration fuzz_parsers::
+//! PROPTEST_CASES=5000 cargo test --release -p soundmap-agent --test integration fuzz_parsers::   # longer
 //! ```
 
 use std::io::Write;

@@ -4,8 +4,7 @@
 //! noise); at most K tracks go out, most active first; the hello declares the
 //! layout; the agent core passes signatures through unchanged.
 
-#[path = "data/synth.rs"]
-mod synth;
+use crate::synth;
 
 use nalgebra::{Isometry3, Vector3};
 use realfft::RealFftPlanner;

@@ -2,8 +2,7 @@
 //! noise alone (independent and diffuse), a source sweeping in azimuth, two
 //! sources at once, and determinism. Figures print with `--nocapture`.
 
-#[path = "data/synth.rs"]
-mod synth;
+use crate::synth;
 
 use std::collections::BTreeSet;
 

@@ -8,7 +8,7 @@
 //!   keeps one id across all of them (never another id for the same source).
 //!
 //! `chaos_three_kills` runs in CI; `chaos_twenty_kills` is the long run
-//! (`cargo test -p soundmap-server --release --test chaos -- --ignored`).
+//! (`cargo test -p soundmap-server --release --test integration chaos:: -- --ignored`).
 
 use std::collections::BTreeSet;
 use std::path::{Path, PathBuf};
@@ -159,7 +159,7 @@ async fn chaos_three_kills() {
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
-#[ignore = "long run (~35 s): cargo test -p soundmap-server --release --test chaos -- --ignored"]
+#[ignore = "long run (~35 s): cargo test -p soundmap-server --release --test integration chaos:: -- --ignored"]
 async fn chaos_twenty_kills() {
     chaos(20).await;
 }

@@ -962,7 +962,7 @@ proptest! {
 
 /// Wall time of one re-planning cycle for 2, 3 and 8 robots, fresh planner each
 /// time (so every call plans). Run:
-/// `cargo test -p soundmap-server --test planner -- --ignored --nocapture planner_cycle_timing`.
+/// `cargo test -p soundmap-server --test integration -- --ignored --nocapture planner::planner_cycle_timing`.
 #[test]
 #[ignore]
 fn planner_cycle_timing() {

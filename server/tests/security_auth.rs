@@ -4,7 +4,7 @@
 //! taken by a client without it, even with `required = false`. The Prometheus
 //! endpoint and gRPC reflection answer only operators that may read.
 
-mod common;
+use crate::common;
 
 use std::path::Path;
 

@@ -6,7 +6,7 @@
 //! would overflow at run time are configuration errors naming the key, and
 //! `--check` refuses an unwritable output file and a listen address in use.
 
-mod common;
+use crate::common;
 
 use std::path::Path;
 use std::process::Command;

@@ -5,7 +5,7 @@
 //! one line replaced, and on every numeric key with arbitrary values (a
 //! value accepted at load must also start a coordinator).
 
-mod common;
+use crate::common;
 
 use std::path::Path;
 

@@ -5,7 +5,7 @@
 //! id is PERMISSION_DENIED), an operator's certificate carries its role, and
 //! bad PEM files are configuration errors naming the file and the key.
 
-mod common;
+use crate::common;
 
 use std::path::{Path, PathBuf};
 use std::sync::Arc;

@@ -2,7 +2,7 @@
 //! error naming the field, the stream stays open, other robots are unaffected,
 //! and the coordinator keeps running with the data it had.
 
-mod common;
+use crate::common;
 
 use common::*;
 use nalgebra::Point3;

@@ -1,7 +1,7 @@
 //! End to end over a real loopback socket: robots stream DoAs, the coordinator
 //! publishes estimates (watch stream, JSON-lines file, GetState).
 
-mod common;
+use crate::common;
 
 use common::*;
 use nalgebra::{Point3, UnitQuaternion, Vector3};

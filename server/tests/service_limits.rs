@@ -5,7 +5,7 @@
 //! `RESOURCE_EXHAUSTED` errors for the excess, its stream stays open and every
 //! observation is acknowledged.
 
-mod common;
+use crate::common;
 
 use std::time::{Duration, Instant};
 

@@ -1,6 +1,6 @@
 //! Liveness, reconnection and authentication over a real socket.
 
-mod common;
+use crate::common;
 
 use std::time::Duration;
 

@@ -5,7 +5,7 @@
 //! it on and off and sets the band; refused goals are not re-sent blindly;
 //! three robots.
 
-mod common;
+use crate::common;
 
 use common::fleet::{Answer, Fleet, time_of};
 use common::*;

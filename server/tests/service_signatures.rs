@@ -3,7 +3,7 @@
 //! `max_tracks`, distinct track ids). A bad one is rejected with a stream
 //! error naming the field; the stream goes on and other robots are unaffected.
 
-mod common;
+use crate::common;
 
 use common::*;
 use nalgebra::Point3;

@@ -2,7 +2,7 @@
 //! `WatchEstimates` streams every source, `GetState` lists the sound map, and
 //! `SetFocus` picks the source active positioning serves.
 
-mod common;
+use crate::common;
 
 use common::*;
 use nalgebra::Point3;

@@ -3,7 +3,7 @@
 //! triangulation, and its uncertainty is honest (NEES within χ² bounds). All
 //! noise is seeded.
 
-mod common;
+use crate::common;
 
 use common::*;
 use nalgebra::{Matrix3, Point3, UnitQuaternion, Vector3};
