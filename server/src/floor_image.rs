@@ -202,7 +202,7 @@
 use std::collections::HashMap;
 use std::sync::{Mutex, OnceLock};
 
-use nalgebra::{Point3, Unit, Vector3};
+use nalgebra::{Matrix3, Point3, Unit, Vector3};
 
 /// Speed of sound used for the beam pattern (m/s).
 const SPEED_OF_SOUND: f64 = 343.0;
@@ -339,6 +339,15 @@ impl LobeTable {
     /// finds the strongest point there, Newton's
     /// method on the slope (kept inside the scan's bracket) places it to 1e-12.
     pub fn family_peak(&self, c_direct: f64, images: &[(f64, f64)]) -> f64 {
+        self.family_peak_found(c_direct, images).0
+    }
+
+    /// [`Self::family_peak`], and whether it is a stationary point of the
+    /// summed pattern found by Newton's method (`false` for the direct path
+    /// alone, or the scan's best point when no bracket was found), where its
+    /// derivatives follow from the implicit function theorem
+    /// ([`Self::family_peak_gradient`]).
+    fn family_peak_found(&self, c_direct: f64, images: &[(f64, f64)]) -> (f64, bool) {
         let power = |c: f64| {
             images
                 .iter()
@@ -361,7 +370,7 @@ impl LobeTable {
         let scan = self.half_width / 2.0;
         let steps = ((highest - lowest) / scan).ceil() as usize;
         if steps == 0 {
-            return c_direct;
+            return (c_direct, false);
         }
         let step = (highest - lowest) / steps as f64;
         let (best, _) = (0..=steps)
@@ -371,7 +380,7 @@ impl LobeTable {
         // Bracket: the slope is positive below the peak and negative above it.
         let (mut lo, mut hi) = ((centre - step).max(lowest), (centre + step).min(highest));
         if !(slope(lo).0 > 0.0 && slope(hi).0 < 0.0) {
-            return centre;
+            return (centre, false);
         }
         let mut c = centre;
         for _ in 0..40 {
@@ -384,15 +393,41 @@ impl LobeTable {
             // Newton where it stays inside the bracket, else bisection.
             let newton = c - g / h;
             if h < 0.0 && (newton - c).abs() < 1e-13 {
-                return newton;
+                return (newton, true);
             }
             let next = if h < 0.0 && newton > lo && newton < hi { newton } else { 0.5 * (lo + hi) };
             if (next - c).abs() < 1e-13 || hi - lo < 1e-13 {
-                return next;
+                return (next, true);
             }
             c = next;
         }
-        c
+        (c, true)
+    }
+
+    /// The derivatives of a stationary peak `c` of B(c − c_d) + Σ wₖ B(c − cₖ)
+    /// with respect to two parameters the arrivals depend on: `d_direct` is
+    /// ∂c_d, and `d_images[k]` is (∂cₖ, ∂wₖ), for each parameter. With S(c) the
+    /// summed slope, S(c) = 0 at the peak, so dc = −(∂S/∂c_d dc_d + Σ ∂S/∂cₖ dcₖ
+    /// + ∂S/∂wₖ dwₖ)/S′(c). `None` where the sum is not curved downward there.
+    fn family_peak_gradient(
+        &self,
+        c: f64,
+        c_direct: f64,
+        images: &[(f64, f64)],
+        d_direct: [f64; 2],
+        d_images: &[[(f64, f64); 2]],
+    ) -> Option<[f64; 2]> {
+        let [_, _, hd] = self.pattern_at(c - c_direct);
+        let mut curvature = hd;
+        let mut num = [hd * d_direct[0], hd * d_direct[1]];
+        for (&(ck, w), d) in images.iter().zip(d_images) {
+            let [_, gk, hk] = self.pattern_at(c - ck);
+            curvature += w * hk;
+            for (n, &(dck, dwk)) in num.iter_mut().zip(d) {
+                *n += w * hk * dck - gk * dwk;
+            }
+        }
+        (curvature < 0.0).then(|| [num[0] / curvature, num[1] / curvature])
     }
 }
 
@@ -690,28 +725,20 @@ const FAMILY_ORDER: u32 = 2;
 /// Images weaker than this (power relative to the direct path) are left out.
 const FAMILY_MIN_WEIGHT: f64 = 1e-4;
 
-/// Step of [`FloorFold::derivatives`] (m).
+/// Step of the forward differences where the model has no closed-form
+/// derivative ([`FloorFold::measured_with_jacobian`]) (m).
 const DERIVATIVE_STEP_M: f64 = 1e-5;
 
-impl FloorFold {
-    /// ∂h/∂x, ∂h/∂y, ∂h/∂z (map axes, per metre) of the measured direction
-    /// h = [`Self::measured_direction`] at `source`, where it is `at`: forward
-    /// differences of 10 µm, since h has no simple closed form. `None` for an
-    /// axis whose stepped point has no measured direction.
-    pub fn derivatives(
-        &self,
-        origin: &Point3<f64>,
-        source: &Point3<f64>,
-        at: &Unit<Vector3<f64>>,
-    ) -> [Option<Vector3<f64>>; 3] {
-        std::array::from_fn(|k| {
-            let mut step = Vector3::zeros();
-            step[k] = DERIVATIVE_STEP_M;
-            let moved = self.measured_direction(origin, &(source + step))?;
-            Some((moved.into_inner() - at.into_inner()) / DERIVATIVE_STEP_M)
-        })
-    }
+/// The radial coordinate c = cos e of the measured direction and, when asked,
+/// its derivatives with respect to the source's horizontal range ρ and its
+/// height above the array v_z.
+struct Radial {
+    c: f64,
+    /// ∂c/∂ρ, ∂c/∂v_z.
+    gradient: Option<[f64; 2]>,
+}
 
+impl FloorFold {
     /// The direction the array at `origin` measures for a source at `source`
     /// (map frame, z up): the source's azimuth, elevation acos(c_d − β·Δc) ≥ 0.
     /// `None` when the source is straight above or below the array.
@@ -725,50 +752,129 @@ impl FloorFold {
         if !(rho > 1e-9) {
             return None;
         }
-        let r_direct = v.norm();
+        let c = self.radial(rho, v.z, v.norm(), false).c.clamp(0.0, 1.0);
+        let s = (1.0 - c * c).max(0.0).sqrt();
+        Some(Unit::new_unchecked(Vector3::new(c * v.x / rho, c * v.y / rho, s)))
+    }
+
+    /// [`Self::measured_direction`] and its Jacobian ∂h/∂source (columns: map
+    /// x, y, z; per metre) from one evaluation of the model: h depends on the
+    /// source through its azimuth (in closed form) and through c(ρ, v_z),
+    /// whose derivatives are those of the merged peak (the implicit function
+    /// theorem at the stationary point [`LobeTable::family_peak`] finds) with
+    /// the ceiling, of the direct path without a reflection, and forward
+    /// differences of c in ρ and v_z otherwise (the β table's branch, a
+    /// look-up). The fits call this once per ray and iteration where forward
+    /// differences in x, y and z took four evaluations.
+    pub fn measured_with_jacobian(
+        &self,
+        origin: &Point3<f64>,
+        source: &Point3<f64>,
+    ) -> Option<(Unit<Vector3<f64>>, Matrix3<f64>)> {
+        let v = source - origin;
+        let rho = v.x.hypot(v.y);
+        if !(rho > 1e-9) {
+            return None;
+        }
+        let Radial { c: raw, gradient } = self.radial(rho, v.z, v.norm(), true);
+        let [dc_rho, dc_z] = match gradient {
+            Some(g) => g,
+            None => {
+                let at = |rho: f64, z: f64| self.radial(rho, z, rho.hypot(z), false).c;
+                let step = DERIVATIVE_STEP_M;
+                [(at(rho + step, v.z) - raw) / step, (at(rho, v.z + step) - raw) / step]
+            }
+        };
+        // A clamped c does not move.
+        let (c, dc_rho, dc_z) =
+            if (0.0..=1.0).contains(&raw) { (raw, dc_rho, dc_z) } else { (raw.clamp(0.0, 1.0), 0.0, 0.0) };
+        let s = (1.0 - c * c).max(0.0).sqrt();
+        let (ux, uy) = (v.x / rho, v.y / rho);
+        // ∂s/∂c = −c/s; at the zenith (s = 0) the direction no longer moves with c.
+        let ds = if s > 1e-12 { -c / s } else { 0.0 };
+        let rho3 = rho * rho * rho;
+        let (dcx, dcy) = (dc_rho * ux, dc_rho * uy);
+        let jacobian = Matrix3::new(
+            dcx * ux + c * v.y * v.y / rho3,
+            dcy * ux - c * v.x * v.y / rho3,
+            dc_z * ux,
+            dcx * uy - c * v.x * v.y / rho3,
+            dcy * uy + c * v.x * v.x / rho3,
+            dc_z * uy,
+            ds * dcx,
+            ds * dcy,
+            ds * dc_z,
+        );
+        Some((Unit::new_unchecked(Vector3::new(c * v.x / rho, c * v.y / rho, s)), jacobian))
+    }
+
+    /// c (unclamped) for a source at horizontal range `rho` > 0, `vz` above
+    /// the array and `r_direct` from it, with its gradient when `gradient` is
+    /// asked and known in closed form.
+    fn radial(&self, rho: f64, vz: f64, r_direct: f64, gradient: bool) -> Radial {
         let c_direct = rho / r_direct;
+        let r3 = r_direct * r_direct * r_direct;
+        let d_direct = [vz * vz / r3, -rho * vz / r3];
         let h_a = self.array_height_m;
-        let h_s = h_a + v.z;
+        let h_s = h_a + vz;
         // A fit may try a source above the ceiling: the images' formulas go on
         // (the ceiling image then passes below the source), so the model stays
         // continuous there instead of switching to the floor image alone.
         let ceiling = self.ceiling_m.filter(|&h| h > h_a);
-        let c = if !(h_a > 0.0 && h_s > 0.0 && self.reflection > 0.0) {
-            c_direct
-        } else if let Some(ceiling) = ceiling {
-            // Images of the source in the floor (z = 0) and the ceiling (z = H):
-            // at 2nH + h_s after 2|n| reflections and 2nH − h_s after |2n − 1|,
-            // heard at the source's azimuth with |z − h_a| above or below the array.
-            let mut images = [(0.0, 0.0); 8];
-            let mut count = 0;
-            for n in -2i32..=2 {
-                let base = 2.0 * f64::from(n) * ceiling;
-                for (z, order) in
-                    [(base + h_s, 2 * n.unsigned_abs()), (base - h_s, (2 * n - 1).unsigned_abs())]
-                {
-                    if order == 0 || order > FAMILY_ORDER {
-                        continue;
-                    }
-                    let r_image = rho.hypot(z - h_a);
-                    let amplitude = self.reflection.powi(order as i32) * r_direct / r_image;
-                    let (c_image, weight) = (rho / r_image, amplitude * amplitude);
-                    if weight >= FAMILY_MIN_WEIGHT && count < images.len() {
-                        images[count] = (c_image, weight);
-                        count += 1;
-                    }
-                }
-            }
-            self.lobe.family_peak(c_direct, &images[..count])
-        } else {
+        if !(h_a > 0.0 && h_s > 0.0 && self.reflection > 0.0) {
+            return Radial { c: c_direct, gradient: gradient.then_some(d_direct) };
+        }
+        let Some(ceiling) = ceiling else {
             let r_image = rho.hypot(h_s + h_a);
             let c_image = rho / r_image;
             let r = self.reflection * r_direct / r_image;
             let dc = c_direct - c_image;
-            c_direct - self.lobe.beta(dc, r * r) * dc
+            return Radial { c: c_direct - self.lobe.beta(dc, r * r) * dc, gradient: None };
         };
-        let c = c.clamp(0.0, 1.0);
-        let s = (1.0 - c * c).max(0.0).sqrt();
-        Some(Unit::new_unchecked(Vector3::new(c * v.x / rho, c * v.y / rho, s)))
+        // Images of the source in the floor (z = 0) and the ceiling (z = H):
+        // at 2nH + h_s after 2|n| reflections and 2nH − h_s after |2n − 1|,
+        // heard at the source's azimuth with |z − h_a| above or below the array.
+        let mut images = [(0.0, 0.0); 8];
+        // Per image: ∂/∂ρ and ∂/∂v_z of (cₖ, wₖ).
+        let mut d_images = [[(0.0, 0.0); 2]; 8];
+        let mut count = 0;
+        for n in -2i32..=2 {
+            let base = 2.0 * f64::from(n) * ceiling;
+            for (z, order, sign) in
+                [(base + h_s, 2 * n.unsigned_abs(), 1.0), (base - h_s, (2 * n - 1).unsigned_abs(), -1.0)]
+            {
+                if order == 0 || order > FAMILY_ORDER {
+                    continue;
+                }
+                let dz = z - h_a;
+                let r_image = rho.hypot(dz);
+                let amplitude = self.reflection.powi(order as i32) * r_direct / r_image;
+                let (c_image, weight) = (rho / r_image, amplitude * amplitude);
+                if weight >= FAMILY_MIN_WEIGHT && count < images.len() {
+                    images[count] = (c_image, weight);
+                    if gradient {
+                        // cₖ = ρ/rₖ, wₖ ∝ r_d²/rₖ², rₖ² = ρ² + dzₖ², ∂dzₖ/∂v_z = ±1.
+                        let ri3 = r_image * r_image * r_image;
+                        let (rd2, ri2) = (r_direct * r_direct, r_image * r_image);
+                        d_images[count] = [
+                            (dz * dz / ri3, weight * (2.0 * rho / rd2 - 2.0 * rho / ri2)),
+                            (-rho * dz * sign / ri3, weight * (2.0 * vz / rd2 - 2.0 * dz * sign / ri2)),
+                        ];
+                    }
+                    count += 1;
+                }
+            }
+        }
+        let images = &images[..count];
+        let (c, stationary) = self.lobe.family_peak_found(c_direct, images);
+        let gradient = match (gradient, stationary) {
+            (false, _) => None,
+            (true, true) => self.lobe.family_peak_gradient(c, c_direct, images, d_direct, &d_images[..count]),
+            // The direct path alone (no image within reach).
+            (true, false) if c == c_direct => Some(d_direct),
+            (true, false) => None,
+        };
+        Radial { c, gradient }
     }
 }
 
@@ -963,16 +1069,71 @@ mod tests {
         let above =
             room.measured_direction(&Point3::new(0.0, 0.0, 0.51), &Point3::new(5.0, 0.0, 3.001)).unwrap();
         assert!((below.into_inner() - above.into_inner()).norm() < 1e-3);
-        // Smooth enough for the fits' forward differences.
+        // Smooth, with a bounded Jacobian, for the fits.
         let origin = Point3::new(0.0, 0.0, 0.51);
         let src = Point3::new(4.0, 1.0, 1.6);
-        let at = room.measured_direction(&origin, &src).unwrap();
-        for d in room.derivatives(&origin, &src, &at) {
-            let d = d.unwrap();
+        let (_, jacobian) = room.measured_with_jacobian(&origin, &src).unwrap();
+        for d in jacobian.column_iter() {
             assert!(d.iter().all(|v| v.is_finite()) && d.norm() < 1.0, "{d:?}");
         }
-        let dz = room.derivatives(&origin, &src, &at)[2].unwrap();
+        let dz = jacobian.column(2);
         assert!(dz.z > 0.0, "a higher source is heard higher: {dz:?}");
+    }
+
+    #[test]
+    fn the_jacobian_in_closed_form_matches_central_differences() {
+        let sixteen = array_pattern(&sixteen(), (100.0, 8000.0)).unwrap();
+        let floor = FloorFold {
+            array_height_m: 0.51,
+            reflection: 0.6,
+            lobe: sixteen.lobe(None),
+            ceiling_m: None,
+            vertical_spread: None,
+        };
+        let talker = FloorFold { lobe: sixteen.lobe(Some((300.0, 3400.0))), ..floor };
+        let folds = [
+            FloorFold { reflection: 0.0, ..floor },
+            floor,
+            FloorFold { ceiling_m: Some(3.0), ..floor },
+            FloorFold { ceiling_m: Some(3.0), ..talker },
+            FloorFold { ceiling_m: Some(2.5), reflection: 0.8, ..talker },
+        ];
+        let origin = Point3::new(0.3, -0.2, 0.51);
+        let mut checked = 0;
+        for (f, fold) in folds.iter().enumerate() {
+            for &(x, y, z) in &[
+                (1.5, 0.4, 1.2),
+                (-2.5, 1.0, 1.7),
+                (3.0, -2.0, 0.8),
+                (4.5, 2.5, 1.6),
+                (-1.0, -6.0, 2.2),
+                (7.0, 0.5, 1.1),
+                (2.0, 2.0, 0.3),
+            ] {
+                let src = Point3::new(x, y, z);
+                let (at, jacobian) = fold.measured_with_jacobian(&origin, &src).unwrap();
+                assert_eq!(at, fold.measured_direction(&origin, &src).unwrap(), "fold {f} at {src}");
+                let h = 1e-6;
+                for k in 0..3 {
+                    let mut step = Vector3::zeros();
+                    step[k] = h;
+                    let up = fold.measured_direction(&origin, &(src + step)).unwrap().into_inner();
+                    let down = fold.measured_direction(&origin, &(src - step)).unwrap().into_inner();
+                    let central = (up - down) / (2.0 * h);
+                    let column = jacobian.column(k).into_owned();
+                    // The floor-only branch interpolates a table: forward
+                    // differences of 10 µm there, against central ones of 1 µm.
+                    let tolerance =
+                        if fold.ceiling_m.is_none() && fold.reflection > 0.0 { 2e-3 } else { 1e-5 };
+                    assert!(
+                        (column - central).norm() <= tolerance * (1.0 + central.norm()),
+                        "fold {f} at {src}, axis {k}: {column:?} vs {central:?}"
+                    );
+                    checked += 1;
+                }
+            }
+        }
+        assert_eq!(checked, 5 * 7 * 3);
     }
 
     #[test]

@@ -22,9 +22,9 @@
 //! with the direction v̂ toward the predicted source but with what such an array
 //! measures for it, h(p̂) ([`crate::floor_image`]: elevation folded onto the upper
 //! hemisphere and pulled toward the floor image). B̂ is then built around h(p̂),
-//! and H's position block is B̂ᵀ ∂h/∂p with the basis held fixed, ∂h/∂p by
-//! forward differences ([`crate::floor_image::FloorFold::derivatives`]), since
-//! h has no simple closed form. Such an array also resolves elevation worse
+//! and H's position block is B̂ᵀ ∂h/∂p with the basis held fixed, h and ∂h/∂p
+//! from one evaluation of the model
+//! ([`crate::floor_image::FloorFold::measured_with_jacobian`]). Such an array also resolves elevation worse
 //! than azimuth: R then carries the extra variance along the vertical tangent
 //! ([`Ray::angular_covariance`], [`Ray::vertical_excess`]).
 
@@ -184,8 +184,8 @@ pub fn doa_innovation(state: &CvState, ray: &Ray, model: &DoaNoiseModel) -> Resu
         return Err(Unusable::TooClose { range_m });
     }
     let position = state.position();
-    let fold_at_estimate = ray.fold.and_then(|f| f.measured_direction(&ray.origin_in_map, &position));
-    let v_hat = fold_at_estimate.unwrap_or(nalgebra::Unit::new_unchecked(v / range_m));
+    let folded = ray.fold.and_then(|f| f.measured_with_jacobian(&ray.origin_in_map, &position));
+    let v_hat = folded.map_or(nalgebra::Unit::new_unchecked(v / range_m), |(at, _)| at);
     let (b1, b2) = tangent_basis(&v_hat);
     let basis = Matrix3x2::from_columns(&[b1, b2]);
     let d = ray.direction_in_map.into_inner() / ray.direction_in_map.norm();
@@ -201,14 +201,13 @@ pub fn doa_innovation(state: &CvState, ray: &Ray, model: &DoaNoiseModel) -> Resu
     let noise_variance_rad2 = ray.angular_variance(range_m) * model.variance_inflation;
     let noise_covariance = ray.angular_covariance(&basis, range_m) * model.variance_inflation;
     let mut jacobian = Matrix2x6::zeros();
-    if let (Some(fold), Some(at_estimate)) = (ray.fold, fold_at_estimate) {
-        // B̂ᵀ ∂h/∂p with the basis held fixed (h by forward differences).
-        for (k, dh) in fold.derivatives(&ray.origin_in_map, &position, &at_estimate).into_iter().enumerate() {
-            let Some(dh) = dh else {
-                return Err(Unusable::NonFinite);
-            };
-            jacobian.fixed_view_mut::<2, 1>(0, k).copy_from(&(basis.transpose() * dh));
+    if let Some((_, dh)) = folded {
+        // B̂ᵀ ∂h/∂p with the basis held fixed (FloorFold::measured_with_jacobian).
+        let dh = basis.transpose() * dh;
+        if !dh.iter().all(|v| v.is_finite()) {
+            return Err(Unusable::NonFinite);
         }
+        jacobian.fixed_view_mut::<2, 3>(0, 0).copy_from(&dh);
     } else {
         jacobian.fixed_view_mut::<2, 3>(0, 0).copy_from(&(basis.transpose() / range_m));
     }

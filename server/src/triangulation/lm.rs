@@ -135,23 +135,17 @@ pub fn refine(rays: &[Ray], init: Point3<f64>, loss: RobustLoss, max_iterations:
         let mut h = Matrix3::zeros();
         let mut g = Vector3::zeros();
         for (ray, t) in rays.iter().zip(&terms) {
-            let (e, u, r) = residual(ray, t, &x).expect("current point is in front of every array");
-            let w = weight(ray, t, r);
-            let jac = match ray.fold {
-                // A folded ray's prediction has no simple closed form: Bᵀ ∂h/∂x
-                // by forward differences from h(x) = u (FloorFold::derivatives).
-                Some(f) => {
-                    let mut jac = Matrix2x3::zeros();
-                    let at = nalgebra::Unit::new_unchecked(u);
-                    for (k, dh) in f.derivatives(&ray.origin_in_map, &x, &at).into_iter().enumerate() {
-                        if let Some(dh) = dh {
-                            jac.set_column(k, &(t.b * dh));
-                        }
-                    }
-                    jac
+            // A folded ray's prediction and Bᵀ ∂h/∂x come from one evaluation
+            // of the floor-image model (FloorFold::measured_with_jacobian).
+            let folded = ray.fold.and_then(|f| f.measured_with_jacobian(&ray.origin_in_map, &x));
+            let (e, jac, r) = match folded {
+                Some((u, dh)) => (t.b * u.into_inner(), t.b * dh, (x - ray.origin_in_map).norm()),
+                None => {
+                    let (e, u, r) = residual(ray, t, &x).expect("current point is in front of every array");
+                    (e, t.b * (Matrix3::identity() - u * u.transpose()) / r, r)
                 }
-                None => t.b * (Matrix3::identity() - u * u.transpose()) / r,
             };
+            let w = weight(ray, t, r);
             let omega = w * loss.weight((e.transpose() * w * e)[0]);
             h += jac.transpose() * omega * jac;
             g += jac.transpose() * omega * e;
