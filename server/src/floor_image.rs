@@ -342,12 +342,8 @@ impl LobeTable {
         self.family_peak_found(c_direct, images).0
     }
 
-    /// [`Self::family_peak`], and whether it is a stationary point of the
-    /// summed pattern found by Newton's method (`false` for the direct path
-    /// alone, or the scan's best point when no bracket was found), where its
-    /// derivatives follow from the implicit function theorem
-    /// ([`Self::family_peak_gradient`]).
-    fn family_peak_found(&self, c_direct: f64, images: &[(f64, f64)]) -> (f64, bool) {
+    /// [`Self::family_peak`], and how it was found.
+    fn family_peak_found(&self, c_direct: f64, images: &[(f64, f64)]) -> (f64, PeakFound) {
         let power = |c: f64| {
             images
                 .iter()
@@ -370,7 +366,7 @@ impl LobeTable {
         let scan = self.half_width / 2.0;
         let steps = ((highest - lowest) / scan).ceil() as usize;
         if steps == 0 {
-            return (c_direct, false);
+            return (c_direct, PeakFound::Direct);
         }
         let step = (highest - lowest) / steps as f64;
         let (best, _) = (0..=steps)
@@ -380,7 +376,7 @@ impl LobeTable {
         // Bracket: the slope is positive below the peak and negative above it.
         let (mut lo, mut hi) = ((centre - step).max(lowest), (centre + step).min(highest));
         if !(slope(lo).0 > 0.0 && slope(hi).0 < 0.0) {
-            return (centre, false);
+            return (centre, PeakFound::Scanned);
         }
         let mut c = centre;
         for _ in 0..40 {
@@ -393,15 +389,15 @@ impl LobeTable {
             // Newton where it stays inside the bracket, else bisection.
             let newton = c - g / h;
             if h < 0.0 && (newton - c).abs() < 1e-13 {
-                return (newton, true);
+                return (newton, PeakFound::Stationary);
             }
             let next = if h < 0.0 && newton > lo && newton < hi { newton } else { 0.5 * (lo + hi) };
             if (next - c).abs() < 1e-13 || hi - lo < 1e-13 {
-                return (next, true);
+                return (next, PeakFound::Stationary);
             }
             c = next;
         }
-        (c, true)
+        (c, PeakFound::Stationary)
     }
 
     /// The derivatives of a stationary peak `c` of B(c − c_d) + Σ wₖ B(c − cₖ)
@@ -429,6 +425,20 @@ impl LobeTable {
         }
         (curvature < 0.0).then(|| [num[0] / curvature, num[1] / curvature])
     }
+}
+
+/// How [`LobeTable::family_peak`] found its peak, which says how the peak
+/// moves with the arrivals.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum PeakFound {
+    /// No image within reach: the direct path itself.
+    Direct,
+    /// A stationary point of the summed pattern (Newton's method), whose
+    /// derivatives follow from the implicit function theorem
+    /// ([`LobeTable::family_peak_gradient`]).
+    Stationary,
+    /// The scan's best point, no bracket found: no closed-form derivative.
+    Scanned,
 }
 
 /// A planar array's radial SRP-PHAT pattern integrated over frequency, from
@@ -866,13 +876,13 @@ impl FloorFold {
             }
         }
         let images = &images[..count];
-        let (c, stationary) = self.lobe.family_peak_found(c_direct, images);
-        let gradient = match (gradient, stationary) {
-            (false, _) => None,
-            (true, true) => self.lobe.family_peak_gradient(c, c_direct, images, d_direct, &d_images[..count]),
-            // The direct path alone (no image within reach).
-            (true, false) if c == c_direct => Some(d_direct),
-            (true, false) => None,
+        let (c, found) = self.lobe.family_peak_found(c_direct, images);
+        let gradient = match (gradient, found) {
+            (false, _) | (true, PeakFound::Scanned) => None,
+            (true, PeakFound::Stationary) => {
+                self.lobe.family_peak_gradient(c, c_direct, images, d_direct, &d_images[..count])
+            }
+            (true, PeakFound::Direct) => Some(d_direct),
         };
         Radial { c, gradient }
     }

@@ -24,8 +24,9 @@
 //! hemisphere and pulled toward the floor image). B̂ is then built around h(p̂),
 //! and H's position block is B̂ᵀ ∂h/∂p with the basis held fixed, h and ∂h/∂p
 //! from one evaluation of the model
-//! ([`crate::floor_image::FloorFold::measured_with_jacobian`]). Such an array also resolves elevation worse
-//! than azimuth: R then carries the extra variance along the vertical tangent
+//! ([`crate::floor_image::FloorFold::measured_with_jacobian`]). Such an array
+//! also resolves elevation worse than azimuth: R then carries the extra
+//! variance along the vertical tangent
 //! ([`Ray::angular_covariance`], [`Ray::vertical_excess`]).
 
 use nalgebra::{
