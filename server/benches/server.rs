@@ -12,7 +12,9 @@
 //!
 //! Options: `--quick` (shorter runs), `--only NAME` (triangulation | tracker |
 //! planner | sources | service), `--no-tracking` (the service without its source tracker,
-//! to see the tracker's share).
+//! to see the tracker's share), `--folded` (the service's robots declare a
+//! planar array and its band, as soundmap agents do, so that the coordinator
+//! fits their rays on the floor-image model).
 
 use std::hint::black_box;
 use std::sync::Arc;
@@ -105,6 +107,10 @@ fn bench_triangulation(quick: bool) {
     let lm128 = time_per_call(3, n / 200, |i| {
         black_box(triangulate(black_box(&sets128[i % 64]), &cfg));
     });
+    let sets128_folded: Vec<Vec<Ray>> = sets128.iter().map(|r| folded(r, None)).collect();
+    let lm128_folded = time_per_call(3, n / 1000, |i| {
+        black_box(triangulate(black_box(&sets128_folded[i % 64]), &cfg));
+    });
     println!("## triangulation (one thread)");
     println!("| operation | ns per call |");
     println!("|---|---|");
@@ -121,6 +127,7 @@ fn bench_triangulation(quick: bool) {
     println!(
         "| 128 rays: IRLS least squares + Levenberg–Marquardt (Cauchy) with covariance and gate | {lm128:.0} |"
     );
+    println!("| 128 rays, folded (floor-image model) | {lm128_folded:.0} |");
     println!("pair / paper ratio: {:.1}×; target for the pair: < 1000 ns\n", pair / paper);
 }
 
@@ -157,17 +164,24 @@ fn tracker_doas(seconds: f64) -> Vec<(Stamp, u32, Ray)> {
     out
 }
 
-/// The same rays as seen by planar arrays 0.5 m above the floor (8 microphones
-/// on a 0.36 m circle, about the 16SoundsUSB's aperture; the floor-image
-/// measurement model on, broadband source; `ceiling_m` adds the ceiling's images).
-fn folded(rays: &[Ray], ceiling_m: Option<f64>) -> Vec<Ray> {
-    let mics: Vec<Point3<f64>> = (0..8)
+/// Band of the planar arrays' search (Hz), as a soundmap agent declares it.
+const BAND_HZ: (f64, f64) = (100.0, 8000.0);
+
+/// 8 microphones on a 0.36 m circle, about the 16SoundsUSB's aperture.
+fn planar_ring() -> Vec<Point3<f64>> {
+    (0..8)
         .map(|k| {
             let a = k as f64 * std::f64::consts::FRAC_PI_4;
             Point3::new(0.18 * a.cos(), 0.18 * a.sin(), 0.0)
         })
-        .collect();
-    let pattern = array_pattern(&mics, (100.0, 8000.0)).expect("planar array");
+        .collect()
+}
+
+/// The same rays as seen by planar arrays 0.5 m above the floor (8 microphones
+/// on a 0.36 m circle, about the 16SoundsUSB's aperture; the floor-image
+/// measurement model on, broadband source; `ceiling_m` adds the ceiling's images).
+fn folded(rays: &[Ray], ceiling_m: Option<f64>) -> Vec<Ray> {
+    let pattern = array_pattern(&planar_ring(), BAND_HZ).expect("planar array");
     let (lobe, vertical_spread) = (pattern.lobe(None), Some(pattern.vertical_spread()));
     rays.iter()
         .map(|r| Ray {
@@ -377,15 +391,27 @@ fn bench_planner_from_bearings(cfg: &PlannerConfig, iters: usize) {
     }
 }
 
-fn hello(i: usize) -> wire::RobotMessage {
+/// What the service bench's robots carry: an array 0.48 m above the base,
+/// declared without geometry (its rays are straight lines), or with the
+/// planar ring and its band (`--folded`: the coordinator folds its rays).
+#[derive(Clone, Copy, PartialEq, Eq)]
+enum Arrays {
+    Undeclared,
+    Folded,
+}
+
+const ARRAY_HEIGHT_M: f64 = 0.48;
+
+fn hello(i: usize, arrays: Arrays) -> wire::RobotMessage {
+    let folded = arrays == Arrays::Folded;
     let h = Hello {
         robot_id: RobotId::parse(&format!("bench-{i}"), "id").expect("valid id"),
         array: ArrayInfo {
-            base_from_array: Isometry3::translation(0.0, 0.0, 0.48),
-            microphone_count: 16,
+            base_from_array: Isometry3::translation(0.0, 0.0, ARRAY_HEIGHT_M),
+            microphone_count: if folded { 8 } else { 16 },
             preset: None,
-            microphone_positions: vec![],
-            srp_band_hz: None,
+            microphone_positions: if folded { planar_ring() } else { vec![] },
+            srp_band_hz: folded.then_some([BAND_HZ.0, BAND_HZ.1]),
         },
         software_version: "bench".into(),
         signature_bands: None,
@@ -394,11 +420,28 @@ fn hello(i: usize) -> wire::RobotMessage {
     wire::RobotMessage { msg: Some(Up::Hello(h.to_wire())) }
 }
 
-fn observation(i: usize, n: usize, seq: u64, stamp: Stamp) -> wire::RobotMessage {
+/// Where a folded robot's array hears the source: the direction the
+/// coordinator's floor-image model (its default reflection, broadband, no
+/// ceiling) predicts, so that its fits meet consistent rays.
+fn heard_fold() -> FloorFold {
+    let doa = CoordinatorConfig::default().doa;
+    let pattern = array_pattern(&planar_ring(), BAND_HZ).expect("planar array");
+    FloorFold {
+        array_height_m: ARRAY_HEIGHT_M + doa.base_height_m,
+        reflection: doa.floor_reflection,
+        lobe: pattern.lobe(None),
+        ceiling_m: None,
+        vertical_spread: None,
+    }
+}
+
+fn observation(i: usize, n: usize, seq: u64, stamp: Stamp, fold: Option<&FloorFold>) -> wire::RobotMessage {
     let source = Point3::new(0.0, 0.0, 1.12);
     let a = i as f64 * std::f64::consts::TAU / n as f64;
     let base = Point3::new(3.0 * a.cos(), 3.0 * a.sin(), 0.0);
-    let d = source - (base + Vector3::new(0.0, 0.0, 0.48));
+    let array = base + Vector3::new(0.0, 0.0, ARRAY_HEIGHT_M);
+    let d =
+        fold.and_then(|f| f.measured_direction(&array, &source)).map_or(source - array, |u| u.into_inner());
     let o = Observation {
         sequence: seq,
         stamp,
@@ -426,9 +469,17 @@ enum Load {
 }
 
 /// One robot streaming observations until `stop`; returns how many were acknowledged.
-async fn robot(channel: tonic::transport::Channel, i: usize, n: usize, load: Load, stop: Instant) -> u64 {
+async fn robot(
+    channel: tonic::transport::Channel,
+    i: usize,
+    n: usize,
+    load: Load,
+    arrays: Arrays,
+    stop: Instant,
+) -> u64 {
     let (tx, rx) = tokio::sync::mpsc::channel(4096);
-    tx.send(hello(i)).await.expect("open");
+    tx.send(hello(i, arrays)).await.expect("open");
+    let fold = (arrays == Arrays::Folded).then(heard_fold);
     let mut stream = RobotLinkClient::new(channel)
         .connect(tokio_stream::wrappers::ReceiverStream::new(rx))
         .await
@@ -456,7 +507,7 @@ async fn robot(channel: tonic::transport::Channel, i: usize, n: usize, load: Loa
                     notify.notified().await;
                 }
                 sent += 1;
-                let _ = tx.send(observation(i, n, sent, Stamp::now())).await;
+                let _ = tx.send(observation(i, n, sent, Stamp::now(), fold.as_ref())).await;
             }
         }
         Load::Paced(rate) => {
@@ -465,7 +516,7 @@ async fn robot(channel: tonic::transport::Channel, i: usize, n: usize, load: Loa
             while Instant::now() < stop {
                 tick.tick().await;
                 sent += 1;
-                let _ = tx.send(observation(i, n, sent, Stamp::now())).await;
+                let _ = tx.send(observation(i, n, sent, Stamp::now(), fold.as_ref())).await;
             }
         }
     }
@@ -493,6 +544,7 @@ async fn drive(
     metrics: Arc<service::Metrics>,
     n: usize,
     load: Load,
+    arrays: Arrays,
     seconds: f64,
 ) -> ServiceFigures {
     let endpoint = format!("http://{addr}");
@@ -511,8 +563,9 @@ async fn drive(
         );
     }
     let warm = Instant::now() + Duration::from_millis(300);
-    let tasks: Vec<_> =
-        (0..n).map(|i| tokio::spawn(robot(channels[i % connections].clone(), i, n, load, warm))).collect();
+    let tasks: Vec<_> = (0..n)
+        .map(|i| tokio::spawn(robot(channels[i % connections].clone(), i, n, load, arrays, warm)))
+        .collect();
     for t in tasks {
         t.await.expect("robot");
     }
@@ -520,7 +573,7 @@ async fn drive(
     let start = Instant::now();
     let stop = start + Duration::from_secs_f64(seconds);
     let tasks: Vec<_> = (0..n)
-        .map(|i| tokio::spawn(robot(channels[i % connections].clone(), i + n, n, load, stop)))
+        .map(|i| tokio::spawn(robot(channels[i % connections].clone(), i + n, n, load, arrays, stop)))
         .collect();
     let mut total = 0;
     for t in tasks {
@@ -536,7 +589,7 @@ async fn drive(
     }
 }
 
-fn bench_service(quick: bool, tracking: bool) {
+fn bench_service(quick: bool, tracking: bool, arrays: Arrays) {
     // The coordinator and the load generator run on separate runtimes (as they
     // would in separate processes); the coordinator task has its own thread.
     let runtime = |name: &str| {
@@ -550,8 +603,12 @@ fn bench_service(quick: bool, tracking: bool) {
     let (server_rt, client_rt) = (runtime("coordinator-rt"), runtime("load-rt"));
     let seconds = if quick { 1.0 } else { 4.0 };
     println!(
-        "## coordinator service over loopback (coordinator: 2 worker threads + its task's thread; load generator: 2 threads in the same process; source tracker {})",
-        if tracking { "on" } else { "off" }
+        "## coordinator service over loopback (coordinator: 2 worker threads + its task's thread; load generator: 2 threads in the same process; source tracker {}; {})",
+        if tracking { "on" } else { "off" },
+        match arrays {
+            Arrays::Undeclared => "arrays undeclared: straight rays",
+            Arrays::Folded => "planar arrays declared with their band: rays folded on the floor-image model",
+        }
     );
     println!(
         "| robot streams | load | observations/s acknowledged | p50 latency | p99 latency | max | samples |"
@@ -569,7 +626,14 @@ fn bench_service(quick: bool, tracking: bool) {
                 config.tracking.enabled = tracking;
                 service::start(config, Arc::new(SystemClock), listener).await.expect("start")
             });
-            let f = client_rt.block_on(drive(running.local_addr, running.metrics.clone(), n, load, seconds));
+            let f = client_rt.block_on(drive(
+                running.local_addr,
+                running.metrics.clone(),
+                n,
+                load,
+                arrays,
+                seconds,
+            ));
             server_rt.block_on(running.shutdown()).expect("shutdown");
             println!(
                 "| {n} | {name} | {:.0} | {:?} | {:?} | {:?} | {} |",
@@ -702,6 +766,7 @@ fn main() {
         bench_sources(quick);
     }
     if run("service") {
-        bench_service(quick, !args.iter().any(|a| a == "--no-tracking"));
+        let arrays = if args.iter().any(|a| a == "--folded") { Arrays::Folded } else { Arrays::Undeclared };
+        bench_service(quick, !args.iter().any(|a| a == "--no-tracking"), arrays);
     }
 }
