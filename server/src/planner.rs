@@ -449,9 +449,10 @@ impl Planner {
         // away is pushed less, not left at the edge). The step is the
         // configured one even while a walker shortens the cycle's
         // (`cadence`): the push is about the source's safety. Bounded by the
-        // shortened step instead, the start scenarios' sweep (seeds 1–20)
-        // issued 4 goals inside the true keep-out instead of 2, with 12 runs
-        // below 95 % in band instead of 11 (BENCHMARKS.md).
+        // shortened step instead, the start scenarios' sweep (seeds 1–20;
+        // `active-moving` 1–19) issued 4 goals inside the true keep-out
+        // instead of 2, with 12 runs below 95 % in band instead of 11
+        // (BENCHMARKS.md, "Three planner changes tried and not kept").
         let cfg = &self.config;
         let before_push = ends(&input.robots, &goals);
         for g in goals.iter_mut().filter(|g| g.reason != RepositionReason::KeepOut) {
