@@ -151,8 +151,10 @@ pub struct DoaConfig {
     /// the source's azimuth above the direct path too; band-limited sources
     /// (talkers) merge them into one lobe and are heard up to 1.5 m too high
     /// at 6 m in a 3 m room. With it set, the floor-image model takes the
-    /// whole vertical family ([`crate::floor_image`]). Unset (the default): the
-    /// floor image alone.
+    /// whole vertical family ([`crate::floor_image`]), and a triangulated point
+    /// above the ceiling (beyond its own 3σ and 0.2 m) is not trusted
+    /// ([`crate::triangulation::GateReason::OutsideRoom`]; one below the floor
+    /// never is). Unset (the default): the floor image alone.
     pub ceiling_height_m: Option<f64>,
     /// Gain of the reflections' pull as the DoA's own coherence reports it:
     /// for DoAs that carry a coherence C, the floor image's weight is

@@ -12,6 +12,16 @@
 //! robots ([`Ray::fold`]) are fitted on what those arrays measure (LM residuals
 //! against the folded, floor-image-pulled direction); with two such rays the
 //! closed-form pair point is the start of that fit.
+//!
+//! Folded rays also say where the room is: each array's floor lies
+//! `array_height_m` below it, and its ceiling `ceiling_m` above that floor
+//! when `[doa] ceiling_height_m` is configured ([`room_of`]). A point below
+//! the floor or above the ceiling by more than [`ROOM_TOLERANCE_M`] plus
+//! three of its own vertical σ is gated [`GateReason::OutsideRoom`]: it is
+//! published, but not trusted, not planned around and no track starts from
+//! it. Nearly parallel rays (seen from above) place their point by their
+//! elevations, which near-planar arrays read worst, and in the start
+//! scenarios such pairs reached 3–12 m above a 3 m ceiling.
 
 pub mod least_squares;
 pub mod lm;
@@ -153,6 +163,38 @@ pub enum GateReason {
         /// Largest accepted (m).
         max: f64,
     },
+    /// The point lies below the floor or above the ceiling that the rays'
+    /// floor-image model declares (see [`room_of`]), by more than
+    /// [`ROOM_TOLERANCE_M`] and three of its own vertical σ.
+    OutsideRoom {
+        /// Height of the point above the floor (m).
+        height_m: f64,
+        /// Height of the ceiling above the floor (m), when declared.
+        ceiling_m: Option<f64>,
+    },
+}
+
+/// How far outside the room a point may lie, beyond three of its vertical σ,
+/// before the gate calls it outside (m): sources sit on the floor and under
+/// the ceiling (a smoke alarm, a ceiling speaker), and their estimates
+/// scatter around them.
+pub const ROOM_TOLERANCE_M: f64 = 0.2;
+
+/// The room as folded rays declare it ([`Ray::fold`]): the floor's height in
+/// the map frame (the lowest of the rays' arrays' floors) and the ceiling's
+/// (the highest), the latter only when every folded ray declares one. `None`
+/// when no ray is folded.
+pub fn room_of(rays: &[Ray]) -> Option<(f64, Option<f64>)> {
+    let mut room: Option<(f64, Option<f64>)> = None;
+    for (ray, fold) in rays.iter().filter_map(|r| r.fold.map(|f| (r, f))) {
+        let floor = ray.origin_in_map.z - fold.array_height_m;
+        let ceiling = fold.ceiling_m.map(|c| floor + c);
+        room = Some(match room {
+            None => (floor, ceiling),
+            Some((f, c)) => (f.min(floor), c.zip(ceiling).map(|(a, b)| a.max(b))),
+        });
+    }
+    room
 }
 
 impl fmt::Display for GateReason {
@@ -166,6 +208,12 @@ impl fmt::Display for GateReason {
                 write!(f, "rays inconsistent (χ² {chi2:.1} > {threshold:.1}, {dof} dof)")
             }
             GateReason::TooFar { range_m, max } => write!(f, "range {range_m:.1} m > {max} m"),
+            GateReason::OutsideRoom { height_m, ceiling_m: Some(c) } => {
+                write!(f, "outside the room: {height_m:.2} m above the floor, ceiling at {c:.2} m")
+            }
+            GateReason::OutsideRoom { height_m, ceiling_m: None } => {
+                write!(f, "outside the room: {height_m:.2} m above the floor")
+            }
         }
     }
 }
@@ -316,6 +364,19 @@ pub fn triangulate(rays: &[Ray], config: &TriangulationConfig) -> Triangulation 
     })
 }
 
+/// [`GateReason::OutsideRoom`] when `p` lies below the rays' floor or above
+/// their ceiling by more than [`ROOM_TOLERANCE_M`] plus three of its vertical
+/// σ (from `q`'s covariance; none without one).
+fn outside_room(rays: &[Ray], p: &Point3<f64>, q: &GeometryQuality) -> Option<GateReason> {
+    let (floor, ceiling) = room_of(rays)?;
+    let sigma_z = q.covariance.map_or(0.0, |c| c[(2, 2)].max(0.0).sqrt());
+    let allowance = ROOM_TOLERANCE_M + 3.0 * sigma_z;
+    let below = p.z < floor - allowance;
+    let above = ceiling.is_some_and(|c| p.z > c + allowance);
+    (below || above)
+        .then(|| GateReason::OutsideRoom { height_m: p.z - floor, ceiling_m: ceiling.map(|c| c - floor) })
+}
+
 fn behind(rays: &[Ray], p: &Point3<f64>, min_range_m: f64) -> Option<Degeneracy> {
     rays.iter().enumerate().find_map(|(i, r)| {
         let s = r.along(p);
@@ -340,6 +401,8 @@ fn gate(
     let threshold = chi2_quantile(dof, c.residual_probability);
     let reason = if range_m > c.max_range_m {
         Some(GateReason::TooFar { range_m, max: c.max_range_m })
+    } else if let Some(outside) = outside_room(rays, p, q) {
+        Some(outside)
     } else if !(kappa <= c.max_condition_number) {
         Some(GateReason::IllConditioned { kappa, max: c.max_condition_number })
     } else if !(q.rms_m <= c.max_rms_m) {
@@ -350,4 +413,90 @@ fn gate(
         None
     };
     reason.map_or(Gate::Accepted, Gate::Rejected)
+}
+
+#[cfg(test)]
+mod tests {
+    use nalgebra::{Point3, Unit};
+
+    use super::*;
+    use crate::floor_image::three_mic_fold;
+
+    /// A ray from an array 0.5 m above the floor at (x, y) toward `target`,
+    /// folded with the given ceiling (or straight).
+    fn ray(x: f64, y: f64, target: &Point3<f64>, fold: bool, ceiling_m: Option<f64>) -> Ray {
+        let origin = Point3::new(x, y, 0.5);
+        Ray {
+            origin_in_map: origin,
+            direction_in_map: Unit::new_normalize(target - origin),
+            sigma_rad: 0.01,
+            origin_sigma_m: 0.0,
+            fold: fold.then(|| crate::floor_image::FloorFold { ceiling_m, ..three_mic_fold(0.6, None) }),
+        }
+    }
+
+    #[test]
+    fn folded_rays_declare_the_room() {
+        let t = Point3::new(0.0, 0.0, 1.5);
+        let three = Some(3.0);
+        assert_eq!(room_of(&[ray(3.0, 0.0, &t, false, None), ray(0.0, 3.0, &t, false, None)]), None);
+        assert_eq!(
+            room_of(&[ray(3.0, 0.0, &t, true, three), ray(0.0, 3.0, &t, false, None)]),
+            Some((0.0, three))
+        );
+        assert_eq!(
+            room_of(&[ray(3.0, 0.0, &t, true, three), ray(0.0, 3.0, &t, true, None)]),
+            Some((0.0, None))
+        );
+        let mut high = ray(0.0, 3.0, &t, true, three);
+        high.origin_in_map.z = 1.5; // a base 1 m higher: its floor at 1 m, its ceiling at 4 m
+        assert_eq!(room_of(&[ray(3.0, 0.0, &t, true, three), high]), Some((0.0, Some(4.0))));
+    }
+
+    #[test]
+    fn a_point_above_the_ceiling_or_below_the_floor_is_not_trusted() {
+        let cfg = TriangulationConfig::default();
+        let at = |z: f64, ceiling_m: Option<f64>| {
+            let p = Point3::new(0.0, 0.0, z);
+            let rays = [ray(3.0, 0.0, &p, true, ceiling_m), ray(0.0, 3.0, &p, true, ceiling_m)];
+            let q = assess(&rays, &p);
+            gate(&rays, &p, &q, 2.0, 0.0, 1, &cfg)
+        };
+        let ceiling = Some(3.0);
+        // Inside, and just outside within the tolerance: accepted.
+        for z in [0.1, 1.5, 2.95, 3.1, -0.1] {
+            assert_eq!(at(z, ceiling), Gate::Accepted, "z {z}");
+        }
+        match at(4.5, ceiling) {
+            Gate::Rejected(r @ GateReason::OutsideRoom { height_m, ceiling_m: Some(c) }) => {
+                assert!((height_m - 4.5).abs() < 1e-12 && c == 3.0);
+                assert!(
+                    r.to_string().contains("outside the room: 4.50 m above the floor, ceiling at 3.00 m"),
+                    "{r}"
+                );
+            }
+            other => panic!("{other:?}"),
+        }
+        assert!(matches!(at(-1.0, None), Gate::Rejected(GateReason::OutsideRoom { ceiling_m: None, .. })));
+        // Without a declared ceiling, any height above the floor.
+        assert_eq!(at(4.5, None), Gate::Accepted);
+        // Straight rays declare no room.
+        let p = Point3::new(0.0, 0.0, -1.0);
+        let rays = [ray(3.0, 0.0, &p, false, None), ray(0.0, 3.0, &p, false, None)];
+        assert_eq!(gate(&rays, &p, &assess(&rays, &p), 2.0, 0.0, 1, &cfg), Gate::Accepted);
+    }
+
+    #[test]
+    fn a_vague_point_keeps_three_of_its_sigma() {
+        // σ 0.2 rad 3 m away: a vertical σ of ~0.6 m, so 4.5 m is within 3σ + 0.2 m of a 3 m ceiling.
+        let p = Point3::new(0.0, 0.0, 4.5);
+        let mut rays = [ray(3.0, 0.0, &p, true, Some(3.0)), ray(0.0, 3.0, &p, true, Some(3.0))];
+        for r in &mut rays {
+            r.sigma_rad = 0.2;
+        }
+        let q = assess(&rays, &p);
+        let sigma_z = q.covariance.unwrap()[(2, 2)].sqrt();
+        assert!(3.0 * sigma_z + ROOM_TOLERANCE_M > 1.5, "σ_z {sigma_z}");
+        assert_eq!(outside_room(&rays, &p, &q), None);
+    }
 }
