@@ -20,8 +20,8 @@
 //! three of its own vertical σ is gated [`GateReason::OutsideRoom`]: it is
 //! published, but not trusted, not planned around and no track starts from
 //! it. Nearly parallel rays (seen from above) place their point by their
-//! elevations, which near-planar arrays read worst, and in the start
-//! scenarios such pairs reached 3–12 m above a 3 m ceiling.
+//! elevations, which near-planar arrays read worst: in the start scenarios
+//! such pairs were placed up to 12 m high in a 3 m room.
 
 pub mod least_squares;
 pub mod lm;
