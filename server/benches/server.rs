@@ -177,11 +177,16 @@ fn planar_ring() -> Vec<Point3<f64>> {
         .collect()
 }
 
+/// The pattern of [`planar_ring`] over [`BAND_HZ`].
+fn ring_pattern() -> &'static soundmap_server::floor_image::ArrayPattern {
+    array_pattern(&planar_ring(), BAND_HZ).expect("planar array")
+}
+
 /// The same rays as seen by planar arrays 0.5 m above the floor (8 microphones
 /// on a 0.36 m circle, about the 16SoundsUSB's aperture; the floor-image
 /// measurement model on, broadband source; `ceiling_m` adds the ceiling's images).
 fn folded(rays: &[Ray], ceiling_m: Option<f64>) -> Vec<Ray> {
-    let pattern = array_pattern(&planar_ring(), BAND_HZ).expect("planar array");
+    let pattern = ring_pattern();
     let (lobe, vertical_spread) = (pattern.lobe(None), Some(pattern.vertical_spread()));
     rays.iter()
         .map(|r| Ray {
@@ -402,8 +407,8 @@ enum Arrays {
 
 const ARRAY_HEIGHT_M: f64 = 0.48;
 
-fn hello(i: usize, arrays: Arrays) -> wire::RobotMessage {
-    let folded = arrays == Arrays::Folded;
+/// The hello of robot `i`, declaring the planar ring and its band when `folded`.
+fn hello(i: usize, folded: bool) -> wire::RobotMessage {
     let h = Hello {
         robot_id: RobotId::parse(&format!("bench-{i}"), "id").expect("valid id"),
         array: ArrayInfo {
@@ -425,11 +430,10 @@ fn hello(i: usize, arrays: Arrays) -> wire::RobotMessage {
 /// ceiling) predicts, so that its fits meet consistent rays.
 fn heard_fold() -> FloorFold {
     let doa = CoordinatorConfig::default().doa;
-    let pattern = array_pattern(&planar_ring(), BAND_HZ).expect("planar array");
     FloorFold {
         array_height_m: ARRAY_HEIGHT_M + doa.base_height_m,
         reflection: doa.floor_reflection,
-        lobe: pattern.lobe(None),
+        lobe: ring_pattern().lobe(None),
         ceiling_m: None,
         vertical_spread: None,
     }
@@ -468,18 +472,19 @@ enum Load {
     Paced(f64),
 }
 
-/// One robot streaming observations until `stop`; returns how many were acknowledged.
+/// One robot streaming observations until `stop`; returns how many were
+/// acknowledged. With `fold`, it declares the planar ring and reports what
+/// that fold predicts the array hears.
 async fn robot(
     channel: tonic::transport::Channel,
     i: usize,
     n: usize,
     load: Load,
-    arrays: Arrays,
+    fold: Option<FloorFold>,
     stop: Instant,
 ) -> u64 {
     let (tx, rx) = tokio::sync::mpsc::channel(4096);
-    tx.send(hello(i, arrays)).await.expect("open");
-    let fold = (arrays == Arrays::Folded).then(heard_fold);
+    tx.send(hello(i, fold.is_some())).await.expect("open");
     let mut stream = RobotLinkClient::new(channel)
         .connect(tokio_stream::wrappers::ReceiverStream::new(rx))
         .await
@@ -547,6 +552,7 @@ async fn drive(
     arrays: Arrays,
     seconds: f64,
 ) -> ServiceFigures {
+    let fold = (arrays == Arrays::Folded).then(heard_fold);
     let endpoint = format!("http://{addr}");
     // Robots share a few HTTP/2 connections: a load generator on one machine
     // cannot afford one per robot as real robots would have.
@@ -564,7 +570,7 @@ async fn drive(
     }
     let warm = Instant::now() + Duration::from_millis(300);
     let tasks: Vec<_> = (0..n)
-        .map(|i| tokio::spawn(robot(channels[i % connections].clone(), i, n, load, arrays, warm)))
+        .map(|i| tokio::spawn(robot(channels[i % connections].clone(), i, n, load, fold, warm)))
         .collect();
     for t in tasks {
         t.await.expect("robot");
@@ -573,7 +579,7 @@ async fn drive(
     let start = Instant::now();
     let stop = start + Duration::from_secs_f64(seconds);
     let tasks: Vec<_> = (0..n)
-        .map(|i| tokio::spawn(robot(channels[i % connections].clone(), i + n, n, load, arrays, stop)))
+        .map(|i| tokio::spawn(robot(channels[i % connections].clone(), i + n, n, load, fold, stop)))
         .collect();
     let mut total = 0;
     for t in tasks {
