@@ -10,7 +10,9 @@
 //! recording order over real gRPC (lockstep, as in the simulator), with the
 //! coordinator clock set to each one's log time — the clock the recording
 //! coordinator had when it handled it. With the same configuration the
-//! replayed coordinator therefore publishes the same estimates.
+//! replayed coordinator therefore publishes the same estimates (and, with a
+//! simulated run's `FILE.coordinator.toml`, which holds the run's active
+//! positioning, its planner decides on them as the run's did).
 //!
 //! The file is read twice, as a stream (constant memory): once for the hellos
 //! and the true sources (`/soundmap/truth`, present in simulator recordings,

@@ -28,7 +28,8 @@ pub struct ViewArgs {
     pub realtime: bool,
     /// Record the live view's channels and the raw soundmap.v1 messages to this
     /// MCAP file. A simulated run also writes the coordinator settings to replay
-    /// it with beside it, as FILE.coordinator.toml (`replay-mcap --config`).
+    /// it with beside it, as FILE.coordinator.toml (`replay-mcap --config`),
+    /// its active positioning included.
     #[arg(long, value_name = "FILE.mcap")]
     pub mcap: Option<PathBuf>,
 }

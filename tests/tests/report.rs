@@ -580,6 +580,24 @@ fn commands_csv_quotes_details_and_keeps_order() {
 }
 
 #[test]
+fn goals_csv_lists_goals_in_time_order_with_their_true_range() {
+    let mut rec = record(vec![], 10.0);
+    rec.robots[1].goals = vec![(0.5, 2.0, 1.0), (4.0, 2.0, 2.5)];
+    let text = soundmap_sim::report::goals_csv(&rec);
+    let lines: Vec<&str> = text.lines().collect();
+    assert_eq!(lines[0], "t_s,robot,x_m,y_m,true_range_m");
+    // r2's goal at 0.5 s lies on the source (then at (2, 1.1)): 0.1 m away.
+    assert_eq!(lines[1], "0.500,r2,2.000,1.000,0.100");
+    // r1's at 1 s: (1, 0.5) against the source at (2, 1.2).
+    assert_eq!(lines[2], format!("1.000,r1,1.000,0.500,{:.3}", 1.0f64.hypot(0.7)));
+    assert_eq!(lines[3], "4.000,r2,2.000,2.500,0.700");
+    assert_eq!(lines.len(), 4);
+    // Without a known source the range is left empty.
+    rec.sources.clear();
+    assert!(soundmap_sim::report::goals_csv(&rec).lines().nth(1).unwrap().ends_with("0.500,r2,2.000,1.000,"));
+}
+
+#[test]
 fn nees_uses_the_published_covariance() {
     let mut r = row(1.0, 90.0, 0.2);
     assert_eq!(r.nees(), None, "no covariance");

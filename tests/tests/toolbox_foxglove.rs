@@ -188,3 +188,48 @@ fn replay_mcap_refuses_what_is_not_a_soundmap_recording() {
     assert!(e.contains("missing.mcap"), "{e}");
     std::fs::remove_dir_all(&dir).unwrap();
 }
+
+/// A recorded run with active positioning on writes it into the settings to
+/// replay it with, and the replay's planner then takes the run's first
+/// decisions on the same estimates: the same goals, listed in `goals.csv`
+/// with their distance to the true source (the replayed robots do not move,
+/// so later goals part from the run's).
+#[test]
+fn replay_mcap_of_an_active_run_plans_as_the_run_did() {
+    let mut scenario = Scenario::load("corner-start").unwrap();
+    scenario.duration_s = 2.0;
+    let dir = temp_dir("active");
+    let mcap = dir.join("run.mcap");
+    let view = ViewArgs { mcap: Some(mcap.clone()), ..ViewArgs::default() };
+    let live = run(&scenario, &RunOptions { seed: Some(5), view, ..RunOptions::default() }).unwrap();
+    let config = soundmap_sim::runner::mcap_replay_config(&mcap);
+    let written = std::fs::read_to_string(&config).unwrap();
+    assert!(written.contains("[active_positioning]") && written.contains("enabled = true"), "{written}");
+    assert!(written.contains("[planner.free_space]") && written.contains("[10.0, 8.0]"), "{written}");
+    let args = ReplayMcapArgs {
+        file: mcap,
+        out: dir.join("replayed"),
+        config: Some(config),
+        view: ViewArgs::default(),
+    };
+    let replayed = replay_mcap(&args).unwrap();
+    write_reports(&replayed, &args.out).unwrap();
+    let first = |r: &soundmap_sim::report::RunRecord| {
+        r.robots
+            .iter()
+            .flat_map(|p| p.goals.iter().map(move |g| (g.0, p.id.clone(), g.1, g.2)))
+            .min_by(|a, b| a.0.total_cmp(&b.0))
+    };
+    let (a, b) = (first(&live).expect("the run planned"), first(&replayed).expect("the replay planned"));
+    assert_eq!(a.1, b.1);
+    assert!(
+        (a.0 - b.0).abs() < 0.1 && (a.2 - b.2).abs() < 1e-6 && (a.3 - b.3).abs() < 1e-6,
+        "{a:?} vs {b:?}"
+    );
+    let goals = std::fs::read_to_string(args.out.join("goals.csv")).unwrap();
+    let line = goals.lines().nth(1).unwrap();
+    assert!(line.starts_with(&format!("{:.3},{},{:.3},{:.3},", b.0, b.1, b.2, b.3)), "{line}");
+    let range: f64 = line.rsplit(',').next().unwrap().parse().unwrap();
+    assert!(range > 1.0 && range < 12.0, "{line}");
+    std::fs::remove_dir_all(&dir).unwrap();
+}

@@ -8,6 +8,7 @@
 //! | `theta_bins.csv` | RSE mean/std/count in 15° bins of θ ([`bins`]) |
 //! | `summary.json` | the run's figures ([`Summary`]; conventions in [`summary`]; the `multi_target` object in [`multi`]) |
 //! | `commands.csv` | reposition commands the robots received: `t_s, robot, detail` |
+//! | `goals.csv` | the goals of those commands, `t_s, robot, x_m, y_m, true_range_m` ([`goals_csv`]) |
 //! | `distances_rse.{svg,png}` | d1 … dN and RSE over time |
 //! | `theta_rse.{svg,png}` | θ over time with the band, and RSE |
 //! | `rse_vs_theta.{svg,png}` | mean RSE ± std per 15° bin over the scatter of all estimates |
@@ -48,6 +49,8 @@ pub const THETA_BINS_CSV: &str = "theta_bins.csv";
 pub const SUMMARY_JSON: &str = "summary.json";
 /// File name of the reposition commands.
 pub const COMMANDS_CSV: &str = "commands.csv";
+/// File name of the commanded goals.
+pub const GOALS_CSV: &str = "goals.csv";
 /// Stems of the plots of one run; each is written as `.svg` and `.png`.
 pub const PLOT_STEMS: [&str; 4] = ["distances_rse", "theta_rse", "rse_vs_theta", "map"];
 /// File name of the side-by-side summaries of [`write_comparison`].
@@ -71,6 +74,7 @@ pub fn write_reports(record: &RunRecord, out_dir: &Path) -> Result<Summary, SimE
     let summary = Summary::new(record, &derived);
     write(out_dir, SUMMARY_JSON, &summary.to_json())?;
     write(out_dir, COMMANDS_CSV, &commands_csv(record))?;
+    write(out_dir, GOALS_CSV, &goals_csv(record))?;
 
     let [distances, theta, rse_theta, map] = PLOT_STEMS;
     plots::save(&plots::distances::DistancesRse { record, derived: &derived }, out_dir, distances)?;
@@ -113,6 +117,34 @@ pub fn commands_csv(record: &RunRecord) -> String {
     let mut out = String::from("t_s,robot,detail\n");
     for (t_s, robot, detail) in &record.commands {
         out.push_str(&format!("{t_s:.3},{},{}\n", csv::text(robot), csv::text(detail)));
+    }
+    out
+}
+
+/// `goals.csv` as text: a header, then every goal a robot was commanded to,
+/// in time order (robots in record order at equal times). `true_range_m` is
+/// the horizontal distance from the goal to the nearest true source playing
+/// within a second of the command (the keep-out is about that distance;
+/// empty when no source's truth is known), so that goals planned around an
+/// estimate that was off show up in a replay as in a live run.
+pub fn goals_csv(record: &RunRecord) -> String {
+    let mut goals: Vec<(f64, &str, f64, f64)> = record
+        .robots
+        .iter()
+        .flat_map(|r| r.goals.iter().map(move |&(t, x, y)| (t, r.id.as_str(), x, y)))
+        .collect();
+    goals.sort_by(|a, b| a.0.total_cmp(&b.0));
+    let mut out = String::from("t_s,robot,x_m,y_m,true_range_m\n");
+    for (t_s, robot, x, y) in goals {
+        let range = record
+            .sources
+            .iter()
+            .filter(|s| s.active_within(t_s - 1.0, t_s + 1.0))
+            .filter_map(|s| s.position_at(t_s))
+            .map(|p| (p.x - x).hypot(p.y - y))
+            .min_by(f64::total_cmp);
+        let range = range.map_or(String::new(), |r| format!("{r:.3}"));
+        out.push_str(&format!("{t_s:.3},{},{x:.3},{y:.3},{range}\n", csv::text(robot)));
     }
     out
 }

@@ -128,7 +128,7 @@ pub fn format_summary_table(summary: &Summary, out_dir: &Path) -> String {
     let _ = writeln!(
         out,
         "reports: {}",
-        out_dir.join("{timeline.csv, theta_bins.csv, summary.json, commands.csv}").display()
+        out_dir.join("{timeline.csv, theta_bins.csv, summary.json, commands.csv, goals.csv}").display()
     );
     let _ = writeln!(
         out,

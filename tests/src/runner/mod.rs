@@ -307,7 +307,7 @@ impl<'a> Sim<'a> {
             write_replay_command(dir, scenario)?;
         }
         if let Some(mcap) = &self.options.view.mcap {
-            write_replay_config_to(&mcap_replay_config(mcap), scenario)?;
+            write_replay_config_to(&mcap_replay_config(mcap), scenario, Some(self.active))?;
         }
         let duration_s = blocks as f64 * BLOCK_LEN as f64 / self.fs as f64;
         let a = &scenario.active_positioning;
@@ -355,17 +355,67 @@ pub fn ceiling_height_m(scenario: &Scenario) -> f64 {
 /// settings and the ones the simulator adds (the room's ceiling, unless the
 /// scenario sets it), for replays; returns its path.
 pub fn write_replay_config(dir: &std::path::Path, scenario: &Scenario) -> Result<PathBuf, SimError> {
-    write_replay_config_to(&dir.join(REPLAY_CONFIG), scenario)
+    write_replay_config_to(&dir.join(REPLAY_CONFIG), scenario, None)
 }
 
-/// Writes the coordinator configuration of [`write_replay_config`] to `path`.
-fn write_replay_config_to(path: &std::path::Path, scenario: &Scenario) -> Result<PathBuf, SimError> {
+/// Writes the coordinator configuration of [`write_replay_config`] to `path`;
+/// with `active`, also the active positioning the run had (on or off, the θ
+/// band, the room and obstacles as free space, as [`configure_positioning`]
+/// sets them), so that a replay of the observations (`replay-mcap`) plans
+/// as the run did: its goals are then the decisions the run's planner would
+/// take on those estimates, though the replayed robots do not move.
+fn write_replay_config_to(
+    path: &std::path::Path,
+    scenario: &Scenario,
+    active: Option<bool>,
+) -> Result<PathBuf, SimError> {
     let mut table = scenario.overrides.coordinator.clone();
-    let doa = table.entry("doa").or_insert_with(|| toml::Value::Table(toml::Table::new()));
-    if let toml::Value::Table(doa) = doa {
-        doa.insert("ceiling_height_m".into(), toml::Value::Float(ceiling_height_m(scenario)));
+    let doa = sub_table(&mut table, "doa");
+    doa.insert("ceiling_height_m".into(), toml::Value::Float(ceiling_height_m(scenario)));
+    let Some(active) = active else {
+        return write_table(
+            path,
+            "the scenario's [coordinator] settings and the simulated room's ceiling",
+            &table,
+        );
+    };
+    let a = &scenario.active_positioning;
+    let positioning = sub_table(&mut table, "active_positioning");
+    positioning.insert("enabled".into(), toml::Value::Boolean(active));
+    positioning.insert("theta_min_deg".into(), toml::Value::Float(a.theta_min_deg));
+    positioning.insert("theta_max_deg".into(), toml::Value::Float(a.theta_max_deg));
+    let polygon = |vertices: &[[f64; 2]]| {
+        toml::Value::Array(
+            vertices
+                .iter()
+                .map(|v| toml::Value::Array(vec![toml::Value::Float(v[0]), toml::Value::Float(v[1])]))
+                .collect(),
+        )
+    };
+    let free_space = sub_table(sub_table(&mut table, "planner"), "free_space");
+    let has_room = free_space.get("room").and_then(|r| r.as_array()).is_some_and(|r| !r.is_empty());
+    if !has_room {
+        free_space.insert("room".into(), polygon(&scenario.room.floor()));
     }
-    write_table(path, "the scenario's [coordinator] settings and the simulated room's ceiling", &table)
+    let obstacles = free_space.entry("obstacles").or_insert_with(|| toml::Value::Array(Vec::new()));
+    if let toml::Value::Array(obstacles) = obstacles {
+        obstacles.extend(scenario.room.obstacles.iter().map(|o| polygon(o)));
+    }
+    write_table(
+        path,
+        "the scenario's [coordinator] settings, the simulated room's ceiling and the run's active positioning",
+        &table,
+    )
+}
+
+/// The table under `key` in `table`, created if missing (a non-table value
+/// there is replaced: the scenario's own settings were validated as tables).
+fn sub_table<'a>(table: &'a mut toml::Table, key: &str) -> &'a mut toml::Table {
+    let entry = table.entry(key).or_insert_with(|| toml::Value::Table(toml::Table::new()));
+    if !entry.is_table() {
+        *entry = toml::Value::Table(toml::Table::new());
+    }
+    entry.as_table_mut().expect("a table was just put there")
 }
 
 /// Where a run recorded to `mcap` (`--mcap FILE.mcap`) writes the coordinator
