@@ -140,7 +140,9 @@ struct Sim<'a> {
     scenario: &'a Scenario,
     options: &'a RunOptions,
     seed: u64,
-    active: bool,
+    /// The run's active positioning and free space, as the coordinator got
+    /// them, for the settings a replay of its recording is given.
+    positioning: ReplayPositioning,
     fs: u32,
     hop: usize,
     robots: Vec<SimRobot>,
@@ -166,6 +168,10 @@ impl<'a> Sim<'a> {
         // a scenario's own `[coordinator.doa] ceiling_height_m` wins.
         config.doa.ceiling_height_m = Some(ceiling_height_m(scenario));
         configure_positioning(&mut config, scenario, active);
+        let positioning = ReplayPositioning {
+            active_positioning: config.active_positioning.clone(),
+            free_space: config.planner.free_space.clone(),
+        };
         options.view.apply(&mut config);
         let hellos: Vec<_> = robots.iter().map(SimRobot::hello).collect();
         let fleet = Fleet::start(config, &hellos, SIM_EPOCH).await?;
@@ -191,7 +197,7 @@ impl<'a> Sim<'a> {
             scenario,
             options,
             seed,
-            active,
+            positioning,
             fs,
             hop: scenario.agent.hop_len,
             robots,
@@ -307,14 +313,14 @@ impl<'a> Sim<'a> {
             write_replay_command(dir, scenario)?;
         }
         if let Some(mcap) = &self.options.view.mcap {
-            write_replay_config_to(&mcap_replay_config(mcap), scenario, Some(self.active))?;
+            write_replay_config_to(&mcap_replay_config(mcap), scenario, Some(&self.positioning))?;
         }
         let duration_s = blocks as f64 * BLOCK_LEN as f64 / self.fs as f64;
         let a = &scenario.active_positioning;
         Ok(RunRecord {
             name: scenario.name.clone(),
             duration_s,
-            active_positioning: self.active,
+            active_positioning: self.positioning.active_positioning.enabled,
             theta_band_deg: (a.theta_min_deg, a.theta_max_deg),
             rows: self.rows.finish(),
             robot_ids: self.robots.iter().map(|r| r.id.to_string()).collect(),
@@ -358,32 +364,38 @@ pub fn write_replay_config(dir: &std::path::Path, scenario: &Scenario) -> Result
     write_replay_config_to(&dir.join(REPLAY_CONFIG), scenario, None)
 }
 
+/// The active positioning a run's coordinator had, as [`configure_positioning`]
+/// set it (on or off, the θ band, the room and obstacles as free space).
+#[derive(Clone, Debug)]
+struct ReplayPositioning {
+    active_positioning: soundmap_server::config::ActivePositioningConfig,
+    free_space: soundmap_server::planner::free_space::FreeSpaceConfig,
+}
+
 /// Writes the coordinator configuration of [`write_replay_config`] to `path`;
-/// with `active`, also the active positioning the run had (on or off, the θ
-/// band, the room and obstacles as free space, as [`configure_positioning`]
-/// sets them), so that a replay of the observations (`replay-mcap`) plans
-/// as the run did: its goals are then the decisions the run's planner would
-/// take on those estimates, though the replayed robots do not move.
+/// with `positioning`, also the run's active positioning, so that a replay
+/// of the observations (`replay-mcap`) plans as the run did: its goals are
+/// then the decisions the run's planner would take on those estimates,
+/// though the replayed robots do not move.
 fn write_replay_config_to(
     path: &std::path::Path,
     scenario: &Scenario,
-    active: Option<bool>,
+    positioning: Option<&ReplayPositioning>,
 ) -> Result<PathBuf, SimError> {
     let mut table = scenario.overrides.coordinator.clone();
     let doa = sub_table(&mut table, "doa");
     doa.insert("ceiling_height_m".into(), toml::Value::Float(ceiling_height_m(scenario)));
-    let Some(active) = active else {
+    let Some(ReplayPositioning { active_positioning: a, free_space }) = positioning else {
         return write_table(
             path,
             "the scenario's [coordinator] settings and the simulated room's ceiling",
             &table,
         );
     };
-    let a = &scenario.active_positioning;
-    let positioning = sub_table(&mut table, "active_positioning");
-    positioning.insert("enabled".into(), toml::Value::Boolean(active));
-    positioning.insert("theta_min_deg".into(), toml::Value::Float(a.theta_min_deg));
-    positioning.insert("theta_max_deg".into(), toml::Value::Float(a.theta_max_deg));
+    let table_of = sub_table(&mut table, "active_positioning");
+    table_of.insert("enabled".into(), toml::Value::Boolean(a.enabled));
+    table_of.insert("theta_min_deg".into(), toml::Value::Float(a.theta_min_deg));
+    table_of.insert("theta_max_deg".into(), toml::Value::Float(a.theta_max_deg));
     let polygon = |vertices: &[[f64; 2]]| {
         toml::Value::Array(
             vertices
@@ -392,15 +404,10 @@ fn write_replay_config_to(
                 .collect(),
         )
     };
-    let free_space = sub_table(sub_table(&mut table, "planner"), "free_space");
-    let has_room = free_space.get("room").and_then(|r| r.as_array()).is_some_and(|r| !r.is_empty());
-    if !has_room {
-        free_space.insert("room".into(), polygon(&scenario.room.floor()));
-    }
-    let obstacles = free_space.entry("obstacles").or_insert_with(|| toml::Value::Array(Vec::new()));
-    if let toml::Value::Array(obstacles) = obstacles {
-        obstacles.extend(scenario.room.obstacles.iter().map(|o| polygon(o)));
-    }
+    let free = sub_table(sub_table(&mut table, "planner"), "free_space");
+    free.insert("room".into(), polygon(&free_space.room));
+    let obstacles = free_space.obstacles.iter().map(|o| polygon(o)).collect();
+    free.insert("obstacles".into(), toml::Value::Array(obstacles));
     write_table(
         path,
         "the scenario's [coordinator] settings, the simulated room's ceiling and the run's active positioning",
