@@ -436,24 +436,21 @@ impl Planner {
             goals = out;
         }
         // Ordinary goals keep the served source's keep-out around its
-        // estimate, often right at its edge: pushed straight out by twice the
-        // estimate's horizontal 1-σ (at most `keep_out_margin_m`), so that an
-        // estimate off by about that much does not put them inside the true
-        // source's (see [`escape`]).
-        let (served, _) = keeps[0];
-        let margin = (2.0 * escape::horizontal_sigma_m(&input.source.covariance_m2))
-            .min(self.config.keep_out_margin_m);
-        // As far as the cycle's hard constraints allow: the step, the largest
-        // range, free space, the other keep-outs and the separation from
-        // where the other robots are going (a via point already a full step
-        // away is pushed less, not left at the edge). The step is the
+        // estimate, often right at its edge: they are pushed out to the
+        // clearance an escape is sent to (r_min plus the margin for the
+        // estimate's error, [`escape::escape_clearance_m`]), so that an
+        // estimate off by up to about 2σ_h does not put them inside the true
+        // source's (see [`escape`]). As far as the cycle's hard constraints
+        // allow: the step, the largest range, free space, the other
+        // keep-outs and the separation from where the other robots are
+        // going. A goal whose straight push would lie beyond the step is
+        // drawn back towards the robot first ([`escape::push_out_within`]);
+        // then a quarter of the margin less at a time. The step is the
         // configured one even while a walker shortens the cycle's
-        // (`cadence`): the push is about the source's safety. Bounded by the
-        // shortened step instead, the start scenarios' sweep (seeds 1–20;
-        // `active-moving` 1–19) issued 4 goals inside the true keep-out
-        // instead of 2, with 12 runs below 95 % in band instead of 11
-        // (BENCHMARKS.md, "Three planner changes tried and not kept").
+        // (`cadence`): the push is about the source's safety.
         let cfg = &self.config;
+        let (served, full) = keeps[0];
+        let margin = full - served.radius_m;
         let before_push = ends(&input.robots, &goals);
         for g in goals.iter_mut().filter(|g| g.reason != RepositionReason::KeepOut) {
             let q = xy_of(&g.map_from_base);
@@ -471,7 +468,13 @@ impl Planner {
             };
             let pushed = (0..PUSH_TRIES)
                 .map(|k| served.radius_m + margin * (PUSH_TRIES - k) as f64 / PUSH_TRIES as f64)
-                .filter_map(|clearance| escape::push_out(&served, &q, clearance))
+                .flat_map(|clearance| {
+                    [
+                        escape::push_out(&served, &q, clearance),
+                        escape::push_out_within(&served, &q, clearance, &p0, cfg.step_m()),
+                    ]
+                })
+                .flatten()
                 .find(allowed);
             if let Some(out) = pushed {
                 g.map_from_base = pose::facing_pose(&out, &g.look_at_in_map);

@@ -55,10 +55,9 @@ pub struct PlannerConfig {
     /// A robot that finds itself inside the keep-out (a walker came up to it)
     /// is sent out to r_min plus the larger of this and twice the estimate's
     /// horizontal 1-σ (that part at most 1 m), at once (`planner::escape`);
-    /// ordinary goals keep r_min plus twice that 1-σ, at most this, from the
-    /// estimate where the cycle's constraints allow. With 0, ordinary goals
-    /// are not pushed and a robot backing out keeps only the 2σ part.
-    /// Default 0.3 (m).
+    /// ordinary goals are pushed out to the same clearance from the
+    /// estimate's path where the cycle's constraints allow. With 0, both keep
+    /// only the 2σ part. Default 0.3 (m).
     pub keep_out_margin_m: f64,
     /// Range of the ideal spots (m), in [r_min, r_max]; information grows as 1/r². Default 2.0.
     pub preferred_range_m: f64,

@@ -32,19 +32,30 @@
 //! there is none.
 //!
 //! Ordinary goals, planned around the estimate, often lie right at the
-//! keep-out's edge; they are pushed straight out by twice the estimate's
-//! horizontal 1-σ (at most `keep_out_margin_m`): a few centimetres to 0.3 m
-//! that keep them outside the true source's keep-out unless the estimate is
-//! off by more than 2σ_h (14 % of the time for an honest covariance), without
-//! changing the geometry planned. Where the full push would break one of the
-//! cycle's constraints (a via point already a full step away, the largest
-//! range, free space, another keep-out, the separation) it is tried at ¾, ½
-//! and ¼ of the margin before the goal is left where it was. Over the start
-//! scenarios' 20-seed sweep (six scenarios, 120 runs) the goals issued within
-//! 1 m of the true source went from 18 (a 1-σ push, all or nothing) to 14
-//! (`fast-walker` 5 → 0; the rest in the talker scenarios, whose estimates
-//! are 0.5–1 m off at times, more than any margin here covers), with θ in
-//! band the same within a point on average per scenario.
+//! keep-out's edge; they are pushed straight out to the clearance a robot
+//! backing out is sent to, r_min + m with the same margin m: they then stay
+//! outside the true source's keep-out unless the estimate is off by more
+//! than m. A goal about a step from its robot (a robot near the source sent
+//! round it) would be pushed beyond the step: it is first drawn back along
+//! the way from the robot, as little as needed, and pushed out from there
+//! ([`push_out_within`]): the same clearance, a little less of the way.
+//! Where the other constraints (the largest range, free space, another
+//! keep-out, the separation) refuse the push it is tried at ¾, ½ and ¼ of
+//! the margin before the goal is left where it was.
+//!
+//! Why, measured decision by decision (the recorded `corner-start` seeds
+//! 1–40 replayed with `soundmap-sim replay-mcap`, which re-runs the planner
+//! on the runs' own estimates; BENCHMARKS.md, session 14): the push used to
+//! be 2σ_h capped at `keep_out_margin_m`, and of the 7 goals it left within
+//! 1 m of the true talker (of 3,687), 3 had their push refused or cut short
+//! by the step, 2 were planned around estimates with σ_h 0.6–0.8 m whose
+//! push was capped at 0.3 m, and 2 around estimates off by 2–3.5 σ_h. With
+//! the escape's clearance and the drawing back, 3 are left: an estimate
+//! 1.3 m off with σ_h 0.79 m (beyond the 1 m cap), one 0.53 m off with
+//! σ_h 0.15 m, and an escape that ends 1 mm inside. Earlier, a 1-σ push (all
+//! or nothing) and then a 2σ_h push capped at 0.3 m took the goals issued
+//! within 1 m of the true source over the start scenarios' 20-seed sweep
+//! from 18 to 14.
 //!
 //! Among the spots on the nearest ring with a way out and the next three
 //! (0.3 m further at most), the planner takes the one whose formation leaves
@@ -78,6 +89,8 @@ const EXTRA_RINGS: usize = 3;
 const EXTRA_TRAVEL_COST_PER_M: f64 = 20.0;
 /// Points checked along the drive to a candidate.
 const DRIVE_SAMPLES: usize = 10;
+/// Bisections of how far [`push_out_within`] draws a goal back (2⁻²⁰ of the way: µm).
+const PUSH_BISECTIONS: usize = 20;
 
 /// The clearance a robot backing out is sent to (m): r_min + max(margin,
 /// min(2σ_h, 1 m)).
@@ -100,6 +113,42 @@ pub(super) fn push_out(keep: &KeepOut, q: &Point2<f64>, clearance: f64) -> Optio
     let away = q - c;
     let r = away.norm();
     (r < clearance && r > 1e-9).then(|| c + away * (clearance / r))
+}
+
+/// `q` moved out to `clearance` from the keep-out's path and within `step`
+/// of `p0`: straight out ([`push_out`]) when that is within reach, else
+/// first drawn back along the way from `p0` to `q`, as little as needed
+/// (by bisection), and pushed straight out from there. `None` when `q` is
+/// already that clear, or when even a spot drawn back to `p0` is out of reach.
+pub(super) fn push_out_within(
+    keep: &KeepOut,
+    q: &Point2<f64>,
+    clearance: f64,
+    p0: &Point2<f64>,
+    step: f64,
+) -> Option<Point2<f64>> {
+    let straight = push_out(keep, q, clearance)?;
+    if (straight - p0).norm() <= step {
+        return Some(straight);
+    }
+    let out_at = |t: f64| {
+        let qt = q + (p0 - q) * t;
+        if keep.clearance(&qt) >= clearance { Some(qt) } else { push_out(keep, &qt, clearance) }
+    };
+    let reaches = |t: f64| out_at(t).is_some_and(|o| (o - p0).norm() <= step);
+    if !reaches(1.0) {
+        return None;
+    }
+    let (mut lo, mut hi) = (0.0, 1.0);
+    for _ in 0..PUSH_BISECTIONS {
+        let mid = 0.5 * (lo + hi);
+        if reaches(mid) {
+            hi = mid;
+        } else {
+            lo = mid;
+        }
+    }
+    out_at(hi)
 }
 
 /// Whether `q` lies at least `extra` beyond every keep-out's radius (with
@@ -196,6 +245,32 @@ mod tests {
         let q = push_out(&keep, &Point2::new(-0.6, -0.8), 1.1).unwrap();
         assert!((q - Point2::new(-0.66, -0.88)).norm() < 1e-12);
         assert!(push_out(&keep, &Point2::new(0.5, 1.2), 1.1).is_none());
+    }
+
+    #[test]
+    fn push_out_within_draws_a_goal_back_to_stay_within_the_step() {
+        let keep = KeepOut { now: Point2::new(0.0, 0.0), ahead: Point2::new(0.0, 0.0), radius_m: 1.0 };
+        // Within reach straight out: the same as `push_out`.
+        let p0 = Point2::new(2.0, 0.0);
+        let q = Point2::new(1.05, 0.0);
+        assert_eq!(push_out_within(&keep, &q, 1.3, &p0, 1.0), push_out(&keep, &q, 1.3));
+        // A robot 0.9 m from the source, sent 0.97 m round it to the
+        // keep-out's edge: straight out, 1.3 m from the source, the goal
+        // would be 1.16 m from the robot. Drawn back towards the robot, it
+        // ends on the 1.3 m circle exactly one step from the robot.
+        let p0 = Point2::new(-0.11, 0.89);
+        let q = Point2::new(-0.94, 0.39);
+        assert!((push_out(&keep, &q, 1.3).unwrap() - p0).norm() > 1.15);
+        let out = push_out_within(&keep, &q, 1.3, &p0, 1.0).unwrap();
+        assert!((keep.clearance(&out) - 1.3).abs() < 1e-9, "{out}");
+        assert!(((out - p0).norm() - 1.0).abs() < 1e-5, "{out}");
+        // Drawn back only as far as needed: a fifth of the way (the other
+        // point of the circle a step from the robot lies behind it).
+        assert!((out - Point2::new(-1.0926, 0.7044)).norm() < 1e-3, "{out}");
+        // Already clear, or out of reach even from the robot's own spot.
+        assert!(push_out_within(&keep, &Point2::new(1.4, 0.0), 1.3, &p0, 1.0).is_none());
+        let near = Point2::new(0.2, 0.0);
+        assert!(push_out_within(&keep, &Point2::new(0.1, 0.1), 1.3, &near, 0.5).is_none());
     }
 
     #[test]
