@@ -456,28 +456,54 @@ impl Planner {
             let q = xy_of(&g.map_from_base);
             let p0 = input.robots[g.robot].base_xy();
             let centre = Point2::new(g.look_at_in_map.x, g.look_at_in_map.y);
-            let allowed = |out: &Point2<f64>| {
-                (out - p0).norm() <= cfg.step_m()
-                    && (out - centre).norm() <= cfg.max_range_m
-                    && self.free.is_free(out)
-                    && escape::clear_of(&keeps[1..], out, 0.0)
-                    && before_push
+            // Why a pushed spot is refused (`None`: it is allowed).
+            let refusal = |out: &Point2<f64>| {
+                if (out - p0).norm() > cfg.step_m() {
+                    Some("take it beyond the step".to_string())
+                } else if (out - centre).norm() > cfg.max_range_m {
+                    Some("take it beyond the largest range".to_string())
+                } else if let Some(why) = self.free.blocked(out) {
+                    Some(format!("put it where it is blocked ({why})"))
+                } else if !escape::clear_of(&keeps[1..], out, 0.0) {
+                    Some("put it inside another source's keep-out".to_string())
+                } else {
+                    before_push
                         .iter()
                         .enumerate()
-                        .all(|(j, e)| j == g.robot || (out - e).norm() >= cfg.min_separation_m)
+                        .find(|&(j, e)| j != g.robot && (out - e).norm() < cfg.min_separation_m)
+                        .map(|(j, _)| {
+                            format!(
+                                "bring it within min_separation_m of {}'s destination",
+                                input.robots[j].id
+                            )
+                        })
+                }
+            };
+            let candidates = |clearance: f64| {
+                [
+                    escape::push_out(&served, &q, clearance),
+                    escape::push_out_within(&served, &q, clearance, &p0, cfg.step_m()),
+                ]
             };
             let pushed = (0..PUSH_TRIES)
                 .map(|k| served.radius_m + margin * (PUSH_TRIES - k) as f64 / PUSH_TRIES as f64)
-                .flat_map(|clearance| {
-                    [
-                        escape::push_out(&served, &q, clearance),
-                        escape::push_out_within(&served, &q, clearance, &p0, cfg.step_m()),
-                    ]
-                })
+                .flat_map(candidates)
                 .flatten()
-                .find(allowed);
+                .find(|out| refusal(out).is_none());
+            let reached = served.clearance(&pushed.unwrap_or(q));
             if let Some(out) = pushed {
                 g.map_from_base = pose::facing_pose(&out, &g.look_at_in_map);
+            }
+            // Short of the full margin: the command says why (the full push's
+            // refusal, drawn back where that exists).
+            if reached < full - 1e-6 {
+                let [straight, drawn_back] = candidates(full);
+                if let Some(why) = drawn_back.or(straight).and_then(|o| refusal(&o)) {
+                    let note = format!(
+                        "{reached:.2} m from the source's path, {full:.2} m wanted: further out would {why}"
+                    );
+                    g.note = Some(g.note.take().map_or(note.clone(), |n| format!("{n}; {note}")));
+                }
             }
         }
         // They keep the served source's keep-out by construction, not the
@@ -662,4 +688,71 @@ fn check_input(cfg: &PlannerConfig, input: &PlannerInput) -> Option<HoldReason> 
         return Some(HoldReason::SourceUntrusted { rms_m, max_m: cfg.max_source_rms_m });
     }
     None
+}
+
+#[cfg(test)]
+mod tests {
+    use nalgebra::{Isometry3, Point3};
+    use soundmap_proto::RobotId;
+
+    use super::*;
+
+    fn robot(k: usize, x: f64, y: f64, goal: Option<(f64, f64)>) -> RobotState {
+        RobotState {
+            id: RobotId::parse(&format!("r{k}"), "id").unwrap(),
+            map_from_base: Isometry3::translation(x, y, 0.0),
+            base_from_array: Isometry3::translation(0.0, 0.0, 0.5),
+            sigma_rad: 3f64.to_radians(),
+            active_goal: goal.map(|(gx, gy)| Isometry3::translation(gx, gy, 0.0)),
+        }
+    }
+
+    fn goal_at(robot: &RobotState, index: usize, x: f64, y: f64, source: Point3<f64>) -> Goal {
+        Goal {
+            robot: index,
+            robot_id: robot.id.clone(),
+            map_from_base: pose::facing_pose(&Point2::new(x, y), &source),
+            look_at_in_map: source,
+            target_in_map: Point2::new(x, y),
+            predicted_theta_deg: 90.0,
+            predicted_gdop: 1.5,
+            predicted_rms_m: 0.1,
+            reason: RepositionReason::Improvement,
+            used_fallback: false,
+            note: None,
+        }
+    }
+
+    /// An ordinary goal at the keep-out's edge is pushed out to the escape's
+    /// clearance (1 m + max(0.3 m, 2σ_h) = 1.3 m for σ 0.1 m); where every
+    /// push would come within `min_separation_m` of another robot's
+    /// destination it stays, and its note says how far out it is and why.
+    #[test]
+    fn a_goal_short_of_the_margin_says_why() {
+        let planner = Planner::new(PlannerConfig::default()).unwrap();
+        let source = Point3::new(0.0, 0.0, 1.2);
+        let free = PlannerInput {
+            source: SourceEstimate::at(source, 0.1),
+            robots: vec![robot(0, 1.05, 0.0, None), robot(1, -1.5, 1.5, None)],
+            others: vec![],
+        };
+        let goals = planner.keep_out_first(&free, vec![goal_at(&free.robots[0], 0, 1.05, 0.0, source)]);
+        assert!((xy_of(&goals[0].map_from_base) - Point2::new(1.3, 0.0)).norm() < 1e-9);
+        assert_eq!(goals[0].note, None);
+
+        // r1 is driving to (1.5, 0.5): 0.66–0.73 m from every pushed spot.
+        let crowded = PlannerInput {
+            robots: vec![robot(0, 1.05, 0.0, None), robot(1, -1.5, 1.5, Some((1.5, 0.5)))],
+            ..free
+        };
+        let goals = planner.keep_out_first(&crowded, vec![goal_at(&crowded.robots[0], 0, 1.05, 0.0, source)]);
+        assert!((xy_of(&goals[0].map_from_base) - Point2::new(1.05, 0.0)).norm() < 1e-9);
+        assert_eq!(
+            goals[0].note.as_deref(),
+            Some(
+                "1.05 m from the source's path, 1.30 m wanted: further out would bring it within \
+                 min_separation_m of r1's destination"
+            )
+        );
+    }
 }

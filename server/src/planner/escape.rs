@@ -41,7 +41,9 @@
 //! ([`push_out_within`]): the same clearance, a little less of the way.
 //! Where the other constraints (the largest range, free space, another
 //! keep-out, the separation) refuse the push it is tried at ¾, ½ and ¼ of
-//! the margin before the goal is left where it was.
+//! the margin before the goal is left where it was. A goal left short of
+//! the full clearance carries a note with the clearance it has, the one
+//! wanted and what the full push would break.
 //!
 //! Why, measured decision by decision (the recorded `corner-start` seeds
 //! 1–40 replayed with `soundmap-sim replay-mcap`, which re-runs the planner
