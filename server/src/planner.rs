@@ -479,30 +479,28 @@ impl Planner {
                         })
                 }
             };
-            let candidates = |clearance: f64| {
-                [
-                    escape::push_out(&served, &q, clearance),
-                    escape::push_out_within(&served, &q, clearance, &p0, cfg.step_m()),
-                ]
-            };
+            // Straight out where that is within the step (any other straight
+            // push is refused by the step), else drawn back first.
+            let push = |clearance: f64| escape::push_out_within(&served, &q, clearance, &p0, cfg.step_m());
             let pushed = (0..PUSH_TRIES)
                 .map(|k| served.radius_m + margin * (PUSH_TRIES - k) as f64 / PUSH_TRIES as f64)
-                .flat_map(candidates)
-                .flatten()
+                .filter_map(push)
                 .find(|out| refusal(out).is_none());
             let reached = served.clearance(&pushed.unwrap_or(q));
             if let Some(out) = pushed {
                 g.map_from_base = pose::facing_pose(&out, &g.look_at_in_map);
             }
             // Short of the full margin: the command says why (the full push's
-            // refusal, drawn back where that exists).
+            // refusal; with no push within the step, the step).
             if reached < full - 1e-6 {
-                let [straight, drawn_back] = candidates(full);
-                if let Some(why) = drawn_back.or(straight).and_then(|o| refusal(&o)) {
-                    let note = format!(
+                let why = match push(full) {
+                    Some(out) => refusal(&out),
+                    None => escape::push_out(&served, &q, full).and_then(|out| refusal(&out)),
+                };
+                if let Some(why) = why {
+                    g.add_note(format!(
                         "{reached:.2} m from the source's path, {full:.2} m wanted: further out would {why}"
-                    );
-                    g.note = Some(g.note.take().map_or(note.clone(), |n| format!("{n}; {note}")));
+                    ));
                 }
             }
         }
@@ -523,8 +521,10 @@ impl Planner {
             match spot {
                 Some(q) => {
                     g.map_from_base = pose::facing_pose(&q, &g.look_at_in_map);
-                    let note = format!("moved to ({:.2}, {:.2}), out of another source's keep-out", q.x, q.y);
-                    g.note = Some(g.note.take().map_or(note.clone(), |n| format!("{n}; {note}")));
+                    g.add_note(format!(
+                        "moved to ({:.2}, {:.2}), out of another source's keep-out",
+                        q.x, q.y
+                    ));
                 }
                 None => dropped.push(g.robot),
             }

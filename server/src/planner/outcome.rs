@@ -35,6 +35,16 @@ pub struct Goal {
     pub note: Option<String>,
 }
 
+impl Goal {
+    /// Adds `remark` to the goal's note, after what it already says.
+    pub(crate) fn add_note(&mut self, remark: String) {
+        self.note = Some(match self.note.take() {
+            Some(n) => format!("{n}; {remark}"),
+            None => remark,
+        });
+    }
+}
+
 /// Why the planner does not move anyone this cycle.
 #[derive(Clone, Debug, PartialEq)]
 pub enum HoldReason {
