@@ -82,17 +82,45 @@ fn topic_kind(topic: &str) -> Topic {
 }
 
 /// The messages of an MCAP file in file order, read as a stream.
+///
+/// A recording cut short (the coordinator stopped without closing it, the
+/// disk filled) ends in the middle of a record: its messages up to the last
+/// complete record (for a chunked file, the last complete chunk) are read,
+/// and [`Messages::cut_short`] says so, instead of the whole replay failing.
 struct Messages {
     path: PathBuf,
     file: std::fs::File,
     reader: LinearReader,
     topics: HashMap<u16, Topic>,
+    /// Messages returned so far.
+    count: usize,
+    /// Whether the file ended in the middle of a record.
+    cut_short: bool,
 }
 
 impl Messages {
     fn open(path: &Path) -> Result<Self, SimError> {
         let file = std::fs::File::open(path).map_err(|e| SimError::file(path, e))?;
-        Ok(Messages { path: path.to_path_buf(), file, reader: LinearReader::new(), topics: HashMap::new() })
+        Ok(Messages {
+            path: path.to_path_buf(),
+            file,
+            reader: LinearReader::new(),
+            topics: HashMap::new(),
+            count: 0,
+            cut_short: false,
+        })
+    }
+
+    /// A warning when the file was cut short, naming what was read.
+    fn cut_short(&self) -> Option<String> {
+        self.cut_short.then(|| {
+            format!(
+                "{}: the recording ends in the middle of a record (cut short while it was written?): \
+                 replaying the {} complete messages before it",
+                self.path.display(),
+                self.count
+            )
+        })
     }
 
     /// The next message: (its topic, log time in ns, payload).
@@ -103,6 +131,10 @@ impl Messages {
         };
         while let Some(event) = self.reader.next_event() {
             match event {
+                Err(mcap::McapError::UnexpectedEof) => {
+                    self.cut_short = true;
+                    return None;
+                }
                 Err(e) => return Some(Err(bad(e))),
                 Ok(LinearReadEvent::ReadRequest(n)) => match self.file.read(self.reader.insert(n)) {
                     Ok(read) => self.reader.notify_read(read),
@@ -115,6 +147,7 @@ impl Messages {
                     }
                     Ok(Record::Message { header, data }) => {
                         let topic = self.topics.get(&header.channel_id).cloned().unwrap_or(Topic::Other);
+                        self.count += 1;
                         return Some(Ok((topic, header.log_time as i64, data.into_owned())));
                     }
                     Ok(_) => {}
@@ -147,6 +180,13 @@ fn read_header(path: &Path) -> Result<(Hellos, Vec<SourceTruth>), SimError> {
             }
             _ => {}
         }
+    }
+    if hellos.is_empty() && messages.cut_short {
+        return Err(SimError::Replay(format!(
+            "{}: the recording ends in the middle of a record (cut short while it was written?) \
+             before any complete /soundmap/robots/*/hello message: nothing to replay",
+            path.display()
+        )));
     }
     if hellos.is_empty() {
         return Err(SimError::Replay(format!(
@@ -312,6 +352,9 @@ async fn replay_async(args: &ReplayMcapArgs) -> Result<RunRecord, SimError> {
             let truth = truth_for(&truths, t_s, point(&e.position_in_map_m));
             rows.push(row_of(&e, t0, truth, if truth.is_some() { &arrays } else { &[] }));
         }
+    }
+    if let Some(warning) = messages.cut_short() {
+        eprintln!("replay-mcap: {warning}");
     }
     let refused = fleet.stream_errors();
     if refused > 0 {

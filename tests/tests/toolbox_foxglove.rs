@@ -168,6 +168,24 @@ fn live_view_and_recording_change_nothing_and_replay_mcap_reproduces_the_run() {
     assert_eq!(rs["estimates"], ps["estimates"]);
     let (r95, p95) = (rs["rse_p95_m"].as_f64(), ps["rse_p95_m"].as_f64());
     assert!(r95.is_some() && (r95.unwrap() - p95.unwrap()).abs() < 1e-3, "{r95:?} vs {p95:?}");
+
+    // A recording cut short while it was written (the coordinator killed, the
+    // disk full) replays up to its last complete record, with the same
+    // estimates as the run up to there; one cut before any robot's hello
+    // says so by name.
+    let bytes = std::fs::read(&mcap).unwrap();
+    let cut = dir.join("cut.mcap");
+    std::fs::write(&cut, &bytes[..bytes.len() / 2]).unwrap();
+    let replayed = replay_mcap(&ReplayMcapArgs { file: cut.clone(), ..args.clone() }).unwrap();
+    let n = replayed.rows.len();
+    assert!(n > 0 && n < plain.rows.len(), "{n} of {} estimates", plain.rows.len());
+    for (r, p) in replayed.rows.iter().zip(&plain.rows) {
+        let (r, p) = (r.estimate_in_map.unwrap(), p.estimate_in_map.unwrap());
+        assert!((r - p).norm() < 1e-9, "{r} vs {p}");
+    }
+    std::fs::write(&cut, &bytes[..200]).unwrap();
+    let e = replay_mcap(&ReplayMcapArgs { file: cut, ..args }).unwrap_err().to_string();
+    assert!(e.contains("cut.mcap") && e.contains("cut short") && e.contains("hello"), "{e}");
     std::fs::remove_dir_all(&dir).unwrap();
 }
 

@@ -125,6 +125,19 @@ fn a_bag_replays_like_the_recording_it_was_made_from() {
         assert!(same(format!("{}.wav", r.id)) && same(format!("{}.tum", r.id)), "{}", r.id);
     }
 
+    // A bag file cut short (the recorder killed before it closed the file) is
+    // read up to its last complete record: shorter audio, fewer estimates.
+    let bytes = std::fs::read(&mcap).unwrap();
+    let cut = dir.join("cut.mcap");
+    std::fs::write(&cut, &bytes[..bytes.len() * 3 / 5]).unwrap();
+    let from_cut = replay(&args(bag_robots(&recorded, None), vec![], dir.join("cut"), Some(&cut))).unwrap();
+    for r in &from_file.robots {
+        let len = |d: &str| std::fs::metadata(dir.join(d).join(format!("{}.wav", r.id))).unwrap().len();
+        assert!(len("cut/rosbag") > 44 && len("cut/rosbag") < len("file/rosbag"), "{}", r.id);
+    }
+    let n = from_cut.rows.len();
+    assert!(n > 0 && n < direct.rows.len(), "{n} of {} estimates", direct.rows.len());
+
     // 16-bit audio: the same run within the quantization's effect.
     let bag16 = dir.join("bag16");
     write_bag(&recorded, &dir, &bag16, "S16LE", "normal");

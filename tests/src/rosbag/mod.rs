@@ -167,6 +167,13 @@ fn survey(bag: &Path, robots: &[(String, BagRobot)]) -> Result<Survey, SimError>
             *first = (*first).min(stamp);
         }
     }
+    for cut in messages.cut_short() {
+        eprintln!(
+            "replay: {}: the bag file ends in the middle of a record (cut short while it was recorded?): \
+             reading the messages before it",
+            cut.display()
+        );
+    }
     let listing = || all_topics.iter().map(|(t, ty)| format!("{t} ({ty})")).collect::<Vec<_>>().join(", ");
     for (id, r) in robots {
         for (topic, what) in [(&r.audio_topic, "audio_topic"), (&r.info_topic, "info_topic")] {

@@ -51,11 +51,18 @@ pub fn bag_files(bag: &Path) -> Result<Vec<PathBuf>, SimError> {
 pub type Message = (std::rc::Rc<Topic>, Vec<u8>);
 
 /// Messages of a bag in file order.
+///
+/// A bag file cut short (the recorder killed or the robot's power lost
+/// before it closed the file) ends in the middle of a record: its messages
+/// up to the last complete record (for a chunked file, the last complete
+/// chunk) are read and the file is listed in [`BagMessages::cut_short`],
+/// instead of the whole bag being refused.
 pub struct BagMessages {
     files: Vec<PathBuf>,
     current: Option<(PathBuf, std::fs::File, LinearReader)>,
     schemas: HashMap<u16, (String, String)>,
     channels: HashMap<u16, std::rc::Rc<Topic>>,
+    cut_short: Vec<PathBuf>,
 }
 
 impl std::fmt::Debug for BagMessages {
@@ -69,7 +76,18 @@ impl BagMessages {
     pub fn open(bag: &Path) -> Result<Self, SimError> {
         let mut files = bag_files(bag)?;
         files.reverse();
-        Ok(BagMessages { files, current: None, schemas: HashMap::new(), channels: HashMap::new() })
+        Ok(BagMessages {
+            files,
+            current: None,
+            schemas: HashMap::new(),
+            channels: HashMap::new(),
+            cut_short: Vec::new(),
+        })
+    }
+
+    /// The files read so far that end in the middle of a record.
+    pub fn cut_short(&self) -> &[PathBuf] {
+        &self.cut_short
     }
 
     /// The next message.
@@ -91,6 +109,11 @@ impl BagMessages {
                 self.current = None;
                 continue;
             };
+            if let Err(mcap::McapError::UnexpectedEof) = event {
+                let (path, ..) = self.current.take().expect("a file is open");
+                self.cut_short.push(path);
+                continue;
+            }
             match event.map_err(bad)? {
                 LinearReadEvent::ReadRequest(n) => {
                     let read = file.read(reader.insert(n)).map_err(|e| SimError::file(path.clone(), e))?;
