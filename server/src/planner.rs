@@ -444,8 +444,12 @@ impl Planner {
         // allow: the step, the largest range, free space, the other
         // keep-outs and the separation from where the other robots are
         // going. A goal whose straight push would lie beyond the step is
-        // drawn back towards the robot first ([`escape::push_out_within`]);
-        // then a quarter of the margin less at a time. The step is the
+        // drawn back towards the robot first ([`escape::push_out_within`]).
+        // Where the full push is refused, the goal slides along the
+        // keep-out to the nearest spot around it that has the full
+        // clearance and keeps every constraint ([`escape::escape_spot`]
+        // centred on the goal); failing that, it is pushed a quarter of the
+        // margin less at a time. The step is the
         // configured one even while a walker shortens the cycle's
         // (`cadence`): the push is about the source's safety.
         let cfg = &self.config;
@@ -456,6 +460,7 @@ impl Planner {
             let q = xy_of(&g.map_from_base);
             let p0 = input.robots[g.robot].base_xy();
             let centre = Point2::new(g.look_at_in_map.x, g.look_at_in_map.y);
+            let me = g.robot;
             // Why a pushed spot is refused (`None`: it is allowed).
             let refusal = |out: &Point2<f64>| {
                 if (out - p0).norm() > cfg.step_m() {
@@ -470,7 +475,7 @@ impl Planner {
                     before_push
                         .iter()
                         .enumerate()
-                        .find(|&(j, e)| j != g.robot && (out - e).norm() < cfg.min_separation_m)
+                        .find(|&(j, e)| j != me && (out - e).norm() < cfg.min_separation_m)
                         .map(|(j, _)| {
                             format!(
                                 "bring it within min_separation_m of {}'s destination",
@@ -482,13 +487,40 @@ impl Planner {
             // Straight out where that is within the step (any other straight
             // push is refused by the step), else drawn back first.
             let push = |clearance: f64| escape::push_out_within(&served, &q, clearance, &p0, cfg.step_m());
-            let pushed = (0..PUSH_TRIES)
-                .map(|k| served.radius_m + margin * (PUSH_TRIES - k) as f64 / PUSH_TRIES as f64)
-                .filter_map(push)
-                .find(|out| refusal(out).is_none());
+            let allowed = |out: &Point2<f64>| refusal(out).is_none();
+            // Where the full straight push is refused, the nearest spot
+            // around the goal that has the full clearance and keeps every
+            // constraint: along the keep-out's edge, away from what refused
+            // the push (another robot's destination, a wall).
+            let slide = || {
+                let rest: Vec<Point2<f64>> =
+                    before_push.iter().enumerate().filter(|&(j, _)| j != me).map(|(_, e)| *e).collect();
+                escape::escape_spot(&keeps, &self.free, &q, &rest, cfg.min_separation_m, |_| 0.0)
+                    .filter(|out| served.clearance(out) >= full - 1e-9 && allowed(out))
+            };
+            let mut slid = false;
+            let short = served.clearance(&q) < full - 1e-9;
+            let pushed = push(full)
+                .filter(allowed)
+                .or_else(|| short.then(slide).flatten().inspect(|_| slid = true))
+                .or_else(|| {
+                    (1..PUSH_TRIES)
+                        .map(|k| served.radius_m + margin * (PUSH_TRIES - k) as f64 / PUSH_TRIES as f64)
+                        .filter_map(push)
+                        .find(allowed)
+                });
             let reached = served.clearance(&pushed.unwrap_or(q));
             if let Some(out) = pushed {
                 g.map_from_base = pose::facing_pose(&out, &g.look_at_in_map);
+            }
+            if slid {
+                let why =
+                    push(full).or_else(|| escape::push_out(&served, &q, full)).and_then(|out| refusal(&out));
+                g.add_note(format!(
+                    "moved {:.2} m along the source's keep-out{}",
+                    (pushed.unwrap_or(q) - q).norm(),
+                    why.map_or(String::new(), |w| format!(": straight out would {w}"))
+                ));
             }
             // Short of the full margin: the command says why (the full push's
             // refusal; with no push within the step, the step).
@@ -724,12 +756,15 @@ mod tests {
     }
 
     /// An ordinary goal at the keep-out's edge is pushed out to the escape's
-    /// clearance (1 m + max(0.3 m, 2σ_h) = 1.3 m for σ 0.1 m); where every
-    /// push would come within `min_separation_m` of another robot's
-    /// destination it stays, and its note says how far out it is and why.
+    /// clearance (1 m + max(0.3 m, 2σ_h) = 1.3 m for σ 0.1 m). Where the
+    /// straight push would come within `min_separation_m` of another robot's
+    /// destination it slides along the keep-out to the nearest spot that has
+    /// the clearance and the separation; hemmed in on both sides it stays,
+    /// and its note says how far out it is and why.
     #[test]
     fn a_goal_short_of_the_margin_says_why() {
         let planner = Planner::new(PlannerConfig::default()).unwrap();
+        let cfg = PlannerConfig::default();
         let source = Point3::new(0.0, 0.0, 1.2);
         let free = PlannerInput {
             source: SourceEstimate::at(source, 0.1),
@@ -740,12 +775,39 @@ mod tests {
         assert!((xy_of(&goals[0].map_from_base) - Point2::new(1.3, 0.0)).norm() < 1e-9);
         assert_eq!(goals[0].note, None);
 
-        // r1 is driving to (1.5, 0.5): 0.66–0.73 m from every pushed spot.
+        // r1 is driving to (1.5, 0.5): 0.54 m from the straight push's spot
+        // (1.3, 0), so the goal slides round, away from r1's destination.
         let crowded = PlannerInput {
             robots: vec![robot(0, 1.05, 0.0, None), robot(1, -1.5, 1.5, Some((1.5, 0.5)))],
-            ..free
+            ..free.clone()
         };
         let goals = planner.keep_out_first(&crowded, vec![goal_at(&crowded.robots[0], 0, 1.05, 0.0, source)]);
+        let slid = xy_of(&goals[0].map_from_base);
+        assert!(slid.coords.norm() >= 1.3 - 1e-9, "{slid}");
+        assert!((slid - Point2::new(1.5, 0.5)).norm() >= cfg.min_separation_m, "{slid}");
+        assert!((slid - Point2::new(1.05, 0.0)).norm() <= cfg.step_m(), "{slid}");
+        assert!(slid.y < 0.0, "away from r1's destination: {slid}");
+        let note = goals[0].note.as_deref().unwrap();
+        assert!(
+            note.starts_with("moved ")
+                && note.ends_with(
+                    "along the source's keep-out: straight out would bring it within \
+                     min_separation_m of r1's destination"
+                ),
+            "{note}"
+        );
+
+        // r2 is driving to (1.5, −0.5): every spot 1.3 m out within the step
+        // is within 0.8 m of r1's or r2's destination, and the goal stays.
+        let hemmed = PlannerInput {
+            robots: vec![
+                robot(0, 1.05, 0.0, None),
+                robot(1, -1.5, 1.5, Some((1.5, 0.5))),
+                robot(2, -1.5, -1.5, Some((1.5, -0.5))),
+            ],
+            ..free
+        };
+        let goals = planner.keep_out_first(&hemmed, vec![goal_at(&hemmed.robots[0], 0, 1.05, 0.0, source)]);
         assert!((xy_of(&goals[0].map_from_base) - Point2::new(1.05, 0.0)).norm() < 1e-9);
         assert_eq!(
             goals[0].note.as_deref(),
