@@ -198,6 +198,7 @@ impl Planner {
                     let d = r.base_xy() - centre;
                     pose::wrap(d.y.atan2(d.x) - b).abs() < std::f64::consts::FRAC_PI_4
                 }),
+                heading_rad: Some(r.map_from_base.rotation.euler_angles().2),
             })
             .collect();
         let settings = PatternSettings {
@@ -206,6 +207,9 @@ impl Planner {
             switch_weight: cfg.pattern_switch_weight,
             blocked_penalty_m: 0.0,
             info_weight_m: cfg.pattern_info_weight_m,
+            turn_cost_m_per_rad: cfg
+                .robot_turn_rate_deg_per_s
+                .map_or(0.0, |rate| cfg.robot_speed_m_per_s / rate.to_radians()),
         };
         let ideal = choose_pattern(&src, &pattern_robots, &settings, None);
         // Penalising blocked spots only raises the cost of candidates with one, so

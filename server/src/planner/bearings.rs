@@ -12,8 +12,29 @@
 //!
 //! Every pattern is rotated over a grid (then refined) and the robots are
 //! assigned to its slots by minimum-cost matching. The cost of a candidate is
-//! Σ travel (straight line, m) + switch weight × arc between each robot's new
-//! and previous target bearing + penalty × blocked spots − info weight × ln det J.
+//! Σ (travel (straight line, m) + turn cost × the turn towards the spot
+//! before the drive) + switch weight × arc between each robot's new and
+//! previous target bearing + penalty × blocked spots − info weight × ln det J.
+//!
+//! **Turns counted as travel** (experimental, off unless `[planner]
+//! robot_turn_rate_deg_per_s` is set). A ground robot's base turns in place
+//! before it drives off in a new direction (the simulated bases do when a
+//! goal lies more than 34° off their heading): a spot behind a robot costs
+//! it a half turn before it moves at all. By travel alone the pattern sends
+//! robots behind themselves whenever that is a little shorter, and,
+//! re-placed every cycle around a walker, such goals kept changing direction
+//! faster than the base turned: in `corner-start-3` seed 8 the pioneer
+//! turned about 270° in 4 s and moved 0.4 m while θ fell to 24°
+//! (BENCHMARKS.md, session 15). With a turn rate set, the turn towards the
+//! spot is priced at what it costs in time, robot speed ÷ turn rate metres
+//! per radian (0.38 m/rad at 0.8 m/s and 120°/s); a robot within
+//! [`AT_SPOT_M`] of its spot turns none. The turn on arrival, to face the
+//! source, is not counted: a robot is usually re-tasked before it arrives,
+//! and counting it made every drive around the source (across the bearing,
+//! the drive that changes θ) dearer than a drive along it (`corner-start`
+//! 4 → 11 runs below 95 % in band). Measured: the start scenarios' runs
+//! below 95 % in band 28 → 19 of 160, but `cocktail-active` (three talkers)
+//! 2 → 24 id switches over 20 runs, which is why it is not on by default.
 
 use nalgebra::{Isometry3, Point2, Point3};
 
@@ -21,6 +42,9 @@ use super::assignment::assign;
 use super::free_space::FreeSpace;
 use super::pose::{sensor_at, unit, wrap};
 use crate::uncertainty::{Sensor, fisher_information};
+
+/// A robot this close to a spot is there: it drives no more, and turns none.
+const AT_SPOT_M: f64 = 0.2;
 
 /// A robot as the pattern search sees it.
 #[derive(Clone, Debug, PartialEq)]
@@ -33,6 +57,8 @@ pub struct PatternRobot {
     pub sigma_rad: f64,
     /// Target bearing of the previous plan (rad, map frame, around the source), if any.
     pub previous_bearing_rad: Option<f64>,
+    /// Heading of the base (rad, map frame), if known.
+    pub heading_rad: Option<f64>,
 }
 
 /// How candidates are generated and scored.
@@ -48,6 +74,9 @@ pub struct PatternSettings {
     pub blocked_penalty_m: f64,
     /// Cost per unit of −ln det J (m).
     pub info_weight_m: f64,
+    /// Cost per radian a robot turns towards its spot before it drives there
+    /// (m; robot speed ÷ turn rate).
+    pub turn_cost_m_per_rad: f64,
 }
 
 /// The chosen target pattern.
@@ -167,9 +196,18 @@ fn evaluate(
     let mut cost = vec![0.0; n * n];
     for (i, r) in robots.iter().enumerate() {
         for j in 0..n {
-            let travel = (slot_spot[j] - r.base_xy).norm();
+            let d = slot_spot[j] - r.base_xy;
+            let travel = d.norm();
             let switch = r.previous_bearing_rad.map_or(0.0, |p| wrap(slot_bearing[j] - p).abs() * s.range_m);
-            cost[i * n + j] = travel + s.switch_weight * switch;
+            // The turn towards the spot before the drive; not the one to face
+            // the source on arrival (see the module docs).
+            let turn = match r.heading_rad {
+                Some(h) if s.turn_cost_m_per_rad > 0.0 && travel > AT_SPOT_M => {
+                    wrap(d.y.atan2(d.x) - h).abs()
+                }
+                _ => 0.0,
+            };
+            cost[i * n + j] = travel + s.switch_weight * switch + s.turn_cost_m_per_rad * turn;
         }
     }
     let (slot, assigned) = assign(&cost, n);
@@ -212,6 +250,7 @@ mod tests {
             base_from_array: Isometry3::translation(0.0, 0.0, h),
             sigma_rad: 0.05,
             previous_bearing_rad: None,
+            heading_rad: None,
         }
     }
 
@@ -222,6 +261,7 @@ mod tests {
             switch_weight: 0.0,
             blocked_penalty_m: 0.0,
             info_weight_m: 0.0,
+            turn_cost_m_per_rad: 0.0,
         }
     }
 
@@ -248,5 +288,43 @@ mod tests {
         let arr = |g: &Point2<f64>| Point3::new(g.x, g.y, 0.5);
         let theta = angle_at_deg(&src, &arr(&p.spots[0]), &arr(&p.spots[1]));
         assert!((theta - 90.0).abs() < 1e-6, "3D θ {theta}");
+    }
+
+    /// `corner-start-3` seed 8 at 13.7 s: the walker, predicted at (4.64,
+    /// 2.77), walks east away from three robots west of it. By travel alone
+    /// the pioneer (heading 62°) is sent south, behind itself (a turn of
+    /// about 150° before it drives); with the turns counted (0.8 m/s,
+    /// 120°/s) every robot's spot lies ahead of it, for a little more travel.
+    #[test]
+    fn counted_turns_send_robots_ahead_of_themselves() {
+        let src = Point3::new(4.64, 2.77, 1.6);
+        let r = |x: f64, y: f64, deg: f64| PatternRobot {
+            heading_rad: Some(deg.to_radians()),
+            ..robot(x, y, 0.5)
+        };
+        let robots = [r(3.60, 3.04, 62.0), r(0.91, 3.90, -88.0), r(2.02, 4.26, 21.0)];
+        let ahead = |p: &TargetPattern| -> Vec<bool> {
+            robots
+                .iter()
+                .zip(&p.spots)
+                .map(|(r, g)| {
+                    let d = g - r.base_xy;
+                    wrap(d.y.atan2(d.x) - r.heading_rad.unwrap()).abs() < std::f64::consts::FRAC_PI_2
+                })
+                .collect()
+        };
+        let by_travel = choose_pattern(&src, &robots, &settings(), None);
+        assert_eq!(ahead(&by_travel), [false, true, true], "{by_travel:?}");
+        let turns = PatternSettings { turn_cost_m_per_rad: 0.8 / 120f64.to_radians(), ..settings() };
+        let by_time = choose_pattern(&src, &robots, &turns, None);
+        assert_eq!(ahead(&by_time), [true, true, true], "{by_time:?}");
+        assert!(by_time.travel_m > by_travel.travel_m, "{by_time:?} vs {by_travel:?}");
+        // Without headings the cost is travel alone, whatever the weight.
+        let blind: Vec<PatternRobot> =
+            robots.iter().map(|r| PatternRobot { heading_rad: None, ..r.clone() }).collect();
+        assert_eq!(
+            choose_pattern(&src, &blind, &turns, None),
+            choose_pattern(&src, &blind, &settings(), None)
+        );
     }
 }

@@ -70,6 +70,15 @@ pub struct PlannerConfig {
     /// accepted as an alias (metres per second are spelled `_m_per_s` in every key).
     #[serde(alias = "robot_speed_mps")]
     pub robot_speed_m_per_s: f64,
+    /// Robot turn rate in place (degrees/s), experimental, unset by default.
+    /// When set, the target pattern's choice counts the turn a robot makes
+    /// towards its spot before it drives as travel, speed ÷ turn rate metres
+    /// per radian, so that a base that turns in place is not sent behind
+    /// itself when a spot ahead serves as well (`planner::bearings`). In the
+    /// start scenarios' sweeps it took the runs below 95 % in band from 28 to
+    /// 19 of 160, but `cocktail-active` gained id switches (2 → 24 in 20
+    /// runs), a cause not understood: BENCHMARKS.md, session 15.
+    pub robot_turn_rate_deg_per_s: Option<f64>,
     /// Shortest time between two re-taskings (s). Default 1.0: a walking source (0.5 m/s) moves half a metre between re-taskings.
     pub planning_period_s: f64,
     /// Re-tasking that follows a moving source (`planner::cadence`): while the
@@ -151,6 +160,7 @@ impl Default for PlannerConfig {
             min_separation_m: 0.8,
             max_step_m: 1.0,
             robot_speed_m_per_s: 0.5,
+            robot_turn_rate_deg_per_s: None,
             planning_period_s: 1.0,
             follow_retask_travel_m: 0.5,
             follow_retask_max_sigma_m: 0.15,
@@ -242,6 +252,11 @@ impl PlannerConfig {
             if !(v.is_finite() && v > 0.0) {
                 return err(field, format!("must be finite and > 0, is {v}"));
             }
+        }
+        if let Some(v) = self.robot_turn_rate_deg_per_s
+            && !(v.is_finite() && v > 0.0)
+        {
+            return err("robot_turn_rate_deg_per_s", format!("must be finite and > 0, is {v}"));
         }
         let non_negative = [
             ("min_separation_m", self.min_separation_m),
@@ -372,6 +387,11 @@ mod tests {
         assert_eq!(field(PlannerConfig { theta_min_deg: 150.0, ..Default::default() }), "theta_min_deg");
         assert_eq!(field(PlannerConfig { min_range_m: -1.0, ..Default::default() }), "min_range_m");
         assert_eq!(field(PlannerConfig { robot_radius_m: -0.1, ..Default::default() }), "robot_radius_m");
+        for bad in [0.0, -30.0, f64::NAN, f64::INFINITY] {
+            let c = PlannerConfig { robot_turn_rate_deg_per_s: Some(bad), ..Default::default() };
+            assert_eq!(field(c), "robot_turn_rate_deg_per_s");
+        }
+        PlannerConfig { robot_turn_rate_deg_per_s: Some(120.0), ..Default::default() }.validate().unwrap();
         assert_eq!(field(PlannerConfig { max_range_m: 0.5, ..Default::default() }), "min_range_m");
         assert_eq!(
             field(PlannerConfig { preferred_range_m: 9.0, ..Default::default() }),
