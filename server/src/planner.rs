@@ -492,52 +492,48 @@ impl Planner {
             // push is refused by the step), else drawn back first.
             let push = |clearance: f64| escape::push_out_within(&served, &q, clearance, &p0, cfg.step_m());
             let allowed = |out: &Point2<f64>| refusal(out).is_none();
+            // Why the full straight push is refused (with no push within the
+            // step, the step's refusal of the straight one).
+            let full_refused =
+                || push(full).or_else(|| escape::push_out(&served, &q, full)).and_then(|out| refusal(&out));
+            let straight = push(full).filter(allowed);
             // Where the full straight push is refused, the nearest spot
-            // around the goal that has the full clearance and keeps every
-            // constraint: along the keep-out's edge, away from what refused
-            // the push (another robot's destination, a wall).
-            let slide = || {
+            // around the goal that keeps every constraint, with every
+            // keep-out's clearance (`escape_spot` asks for it): along the
+            // keep-out's edge, away from what refused the push (another
+            // robot's destination, a wall).
+            let slid = if straight.is_none() && served.clearance(&q) < full - 1e-9 {
                 let rest: Vec<Point2<f64>> =
                     before_push.iter().enumerate().filter(|&(j, _)| j != me).map(|(_, e)| *e).collect();
                 escape::escape_spot(&keeps, &self.free, &q, &rest, cfg.min_separation_m, |_| 0.0)
-                    .filter(|out| served.clearance(out) >= full - 1e-9 && allowed(out))
+                    .filter(allowed)
+            } else {
+                None
             };
-            let mut slid = false;
-            let short = served.clearance(&q) < full - 1e-9;
-            let pushed = push(full)
-                .filter(allowed)
-                .or_else(|| short.then(slide).flatten().inspect(|_| slid = true))
-                .or_else(|| {
-                    (1..PUSH_TRIES)
-                        .map(|k| served.radius_m + margin * (PUSH_TRIES - k) as f64 / PUSH_TRIES as f64)
-                        .filter_map(push)
-                        .find(allowed)
-                });
+            let pushed = straight.or(slid).or_else(|| {
+                (1..PUSH_TRIES)
+                    .map(|k| served.radius_m + margin * (PUSH_TRIES - k) as f64 / PUSH_TRIES as f64)
+                    .filter_map(push)
+                    .find(allowed)
+            });
             let reached = served.clearance(&pushed.unwrap_or(q));
             if let Some(out) = pushed {
                 g.map_from_base = pose::facing_pose(&out, &g.look_at_in_map);
             }
-            if slid {
-                let why =
-                    push(full).or_else(|| escape::push_out(&served, &q, full)).and_then(|out| refusal(&out));
+            if let Some(spot) = slid {
                 g.add_note(format!(
                     "moved {:.2} m along the source's keep-out{}",
-                    (pushed.unwrap_or(q) - q).norm(),
-                    why.map_or(String::new(), |w| format!(": straight out would {w}"))
+                    (spot - q).norm(),
+                    full_refused().map_or(String::new(), |w| format!(": straight out would {w}"))
                 ));
             }
-            // Short of the full margin: the command says why (the full push's
-            // refusal; with no push within the step, the step).
-            if reached < full - 1e-6 {
-                let why = match push(full) {
-                    Some(out) => refusal(&out),
-                    None => escape::push_out(&served, &q, full).and_then(|out| refusal(&out)),
-                };
-                if let Some(why) = why {
-                    g.add_note(format!(
-                        "{reached:.2} m from the source's path, {full:.2} m wanted: further out would {why}"
-                    ));
-                }
+            // Short of the full margin: the command says why.
+            if reached < full - 1e-6
+                && let Some(why) = full_refused()
+            {
+                g.add_note(format!(
+                    "{reached:.2} m from the source's path, {full:.2} m wanted: further out would {why}"
+                ));
             }
         }
         // They keep the served source's keep-out by construction, not the
