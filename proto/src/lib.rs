@@ -25,7 +25,7 @@ pub mod stamp;
 pub use error::{Problem, ValidationError};
 pub use geometry::{Limits, aperture_m, pose_from_wire, pose_to_wire, vec3_to_wire};
 pub use messages::{
-    ArrayInfo, CommandAck, CommandProgress, CommandState, Hello, Observation, PROTOCOL_VERSION,
+    ArrayInfo, BaseLimits, CommandAck, CommandProgress, CommandState, Hello, Observation, PROTOCOL_VERSION,
     RepositionCommand, RepositionReason, RobotInput, TrackedDoa,
 };
 pub use robot_id::RobotId;

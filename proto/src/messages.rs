@@ -60,6 +60,60 @@ pub struct Hello {
     pub signature_bands: Option<Vec<f64>>,
     /// Most DoAs the robot sends in one observation (1..=64), when declared.
     pub max_tracks: Option<u32>,
+    /// The base's motion limits, as far as the robot declares them.
+    pub base_limits: BaseLimits,
+}
+
+/// Motion limits of a robot's base (`None`: not declared).
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct BaseLimits {
+    /// Speed at which the base drives to a goal, m/s, in (0, 10].
+    pub max_speed_m_per_s: Option<f64>,
+    /// Rate at which the base turns in place, degrees/s, in (0, 3600].
+    pub max_turn_rate_deg_per_s: Option<f64>,
+}
+
+impl BaseLimits {
+    /// Largest accepted speed, m/s.
+    pub const MAX_SPEED_M_PER_S: f64 = 10.0;
+    /// Largest accepted turn rate, degrees/s.
+    pub const MAX_TURN_RATE_DEG_PER_S: f64 = 3600.0;
+
+    fn from_wire(b: &wire::BaseLimits, field: &str) -> Result<Self, ValidationError> {
+        let limit = |v: f64, name: &str, max: f64, range: &'static str| {
+            let f = format!("{field}.{name}");
+            let v = finite(v, &f)?;
+            if v == 0.0 {
+                Ok(None)
+            } else if v > 0.0 && v <= max {
+                Ok(Some(v))
+            } else {
+                Err(ValidationError::new(f, Problem::OutOfRange { value: v, range }))
+            }
+        };
+        Ok(BaseLimits {
+            max_speed_m_per_s: limit(
+                b.max_speed_m_per_s,
+                "max_speed_m_per_s",
+                Self::MAX_SPEED_M_PER_S,
+                "(0, 10] m/s (0 = unknown)",
+            )?,
+            max_turn_rate_deg_per_s: limit(
+                b.max_turn_rate_deg_per_s,
+                "max_turn_rate_deg_per_s",
+                Self::MAX_TURN_RATE_DEG_PER_S,
+                "(0, 3600] degrees/s (0 = unknown)",
+            )?,
+        })
+    }
+
+    /// Wire form; `None` when nothing is declared.
+    pub fn to_wire(self) -> Option<wire::BaseLimits> {
+        (self != BaseLimits::default()).then(|| wire::BaseLimits {
+            max_speed_m_per_s: self.max_speed_m_per_s.unwrap_or(0.0),
+            max_turn_rate_deg_per_s: self.max_turn_rate_deg_per_s.unwrap_or(0.0),
+        })
+    }
 }
 
 /// One tracked direction of arrival.
@@ -343,6 +397,12 @@ impl Hello {
                 .map(|b| band_edges(&b.band_edges_hz, "hello.signature_bands.band_edges_hz"))
                 .transpose()?,
             max_tracks,
+            base_limits: h
+                .base_limits
+                .as_ref()
+                .map(|b| BaseLimits::from_wire(b, "hello.base_limits"))
+                .transpose()?
+                .unwrap_or_default(),
         })
     }
 
@@ -363,6 +423,7 @@ impl Hello {
                 .as_ref()
                 .map(|e| wire::SignatureBands { band_edges_hz: e.clone() }),
             max_tracks: self.max_tracks.unwrap_or(0),
+            base_limits: self.base_limits.to_wire(),
         }
     }
 }
@@ -726,6 +787,7 @@ mod tests {
             software_version: "test".into(),
             signature_bands: Some(vec![100.0, 1000.0, 7200.0]),
             max_tracks: Some(4),
+            base_limits: Default::default(),
         };
         assert_eq!(Hello::from_wire(&h.to_wire(), &l).unwrap(), h);
         let mut w = h.to_wire();
@@ -755,6 +817,37 @@ mod tests {
         }
     }
 
+    /// A base's declared limits round-trip; 0 (or absent) is unknown, and
+    /// values out of range or not finite are refused by name.
+    #[test]
+    fn hello_base_limits_checks() {
+        let l = limits();
+        let declared = BaseLimits { max_speed_m_per_s: Some(0.22), max_turn_rate_deg_per_s: Some(160.0) };
+        let h = Hello { base_limits: declared, ..hello_with_bands() };
+        assert_eq!(Hello::from_wire(&h.to_wire(), &l).unwrap(), h);
+        // Unknown: no message on the wire, and zeros read as unknown.
+        let plain = hello_with_bands();
+        assert!(plain.to_wire().base_limits.is_none());
+        let mut w = plain.to_wire();
+        w.base_limits = Some(wire::BaseLimits { max_speed_m_per_s: 0.5, max_turn_rate_deg_per_s: 0.0 });
+        let read = Hello::from_wire(&w, &l).unwrap().base_limits;
+        assert_eq!(read, BaseLimits { max_speed_m_per_s: Some(0.5), max_turn_rate_deg_per_s: None });
+        for (speed, turn, field) in [
+            (-0.1, 0.0, "hello.base_limits.max_speed_m_per_s"),
+            (f64::NAN, 0.0, "hello.base_limits.max_speed_m_per_s"),
+            (10.5, 0.0, "hello.base_limits.max_speed_m_per_s"),
+            (0.5, f64::INFINITY, "hello.base_limits.max_turn_rate_deg_per_s"),
+            (0.5, -30.0, "hello.base_limits.max_turn_rate_deg_per_s"),
+            (0.5, 4000.0, "hello.base_limits.max_turn_rate_deg_per_s"),
+        ] {
+            let mut w = plain.to_wire();
+            w.base_limits =
+                Some(wire::BaseLimits { max_speed_m_per_s: speed, max_turn_rate_deg_per_s: turn });
+            let e = Hello::from_wire(&w, &l).unwrap_err();
+            assert_eq!(e.field, field, "{speed} {turn}: {e}");
+        }
+    }
+
     fn hello_with_bands() -> Hello {
         Hello {
             robot_id: RobotId::parse("r1", "id").unwrap(),
@@ -768,6 +861,7 @@ mod tests {
             software_version: String::new(),
             signature_bands: Some(vec![100.0, 1000.0, 3000.0, 7200.0]),
             max_tracks: Some(2),
+            base_limits: Default::default(),
         }
     }
 

@@ -13,7 +13,7 @@
 use nalgebra::{Isometry3, Matrix3};
 
 use crate::geometry::pose_to_wire;
-use crate::messages::{ArrayInfo, CommandState, RepositionCommand};
+use crate::messages::{ArrayInfo, BaseLimits, CommandState, RepositionCommand};
 use crate::robot_id::RobotId;
 use crate::stamp::Stamp;
 use crate::wire;
@@ -57,6 +57,8 @@ pub struct RobotStatus<'a> {
     pub array: &'a ArrayInfo,
     /// Its software version, from its hello.
     pub software_version: &'a str,
+    /// Its base's limits, from its hello.
+    pub base_limits: BaseLimits,
     /// Observations accepted since start.
     pub observations_accepted: u64,
     /// Observations rejected since start.
@@ -84,6 +86,7 @@ impl RobotStatus<'_> {
                 .and_then(|(_, s)| s)
                 .map_or(wire::CommandState::Unspecified, |s| s.to_wire())
                 as i32,
+            base_limits: self.base_limits.to_wire(),
         }
     }
 }
@@ -248,8 +251,11 @@ mod tests {
             observations_accepted: 4,
             observations_rejected: 1,
             active_command: Some((&command, None)),
+            base_limits: BaseLimits { max_speed_m_per_s: Some(0.22), max_turn_rate_deg_per_s: None },
         };
         let w = s.to_wire();
+        let limits = w.base_limits.expect("declared limits are shown");
+        assert_eq!((limits.max_speed_m_per_s, limits.max_turn_rate_deg_per_s), (0.22, 0.0));
         assert_eq!((w.robot_id.as_str(), w.liveness), ("r1", wire::Liveness::Live as i32));
         assert_eq!((w.last_seen_ns, w.last_observation_ns, w.map_from_base), (8, 0, None));
         assert_eq!(w.active_command.map(|c| c.command_id), Some(7));

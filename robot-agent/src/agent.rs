@@ -244,6 +244,7 @@ pub fn hello(robot_id: RobotId, array: &ArrayGeometry, software_version: String)
         software_version,
         signature_bands: None,
         max_tracks: None,
+        base_limits: Default::default(),
     }
 }
 

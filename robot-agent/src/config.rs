@@ -160,6 +160,10 @@ pub struct NavigatorConfig {
     pub path: PathBuf,
     /// Distance to the goal at which a command counts as done, metres.
     pub arrival_tolerance_m: f64,
+    /// The base's speed and turn rate (`max_speed_m_per_s`,
+    /// `max_turn_rate_deg_per_s`), declared in the hello so that the
+    /// coordinator plans each robot's goals for its own base.
+    pub base_limits: soundmap_proto::BaseLimits,
 }
 
 impl AgentConfig {

@@ -105,6 +105,7 @@ impl LivePlan {
         let robot_id = config.robot_id.clone();
         let version = format!("soundmap-agent {}", env!("CARGO_PKG_VERSION"));
         let mut hello = agent::hello(robot_id, &array, version);
+        hello.base_limits = config.navigator.base_limits;
         if let DoaSource::Own { pipeline, .. } = &config.doa {
             // The robot declares how many tracks it sends and its signature bands.
             hello = pipeline.declare_tracks(hello).map_err(|e| named(&cfg_name, "pipeline", e))?;

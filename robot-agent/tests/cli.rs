@@ -342,6 +342,8 @@ path = "traj.tum"
 start_s = 10.0
 [navigator]
 path = "goals.jsonl"
+max_speed_m_per_s = 0.22
+max_turn_rate_deg_per_s = 160.0
 [link]
 heartbeat_interval_ms = 100
 "#
@@ -352,6 +354,9 @@ heartbeat_interval_ms = 100
     let seen = coordinator.0.lock().unwrap();
     let hello = seen.hello.as_ref().expect("hello");
     assert_eq!(hello.robot_id, "cli-robot");
+    // The base's limits from [navigator] travel in the hello.
+    let limits = hello.base_limits.as_ref().expect("declared");
+    assert_eq!((limits.max_speed_m_per_s, limits.max_turn_rate_deg_per_s), (0.22, 160.0));
     let array = hello.array.as_ref().unwrap();
     assert_eq!((array.microphone_count, array.preset.as_str()), (4, "respeaker-4"));
     assert_eq!(array.microphone_positions_m.len(), 4);

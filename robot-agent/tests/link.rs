@@ -194,6 +194,7 @@ fn hello(id: &str) -> Hello {
         software_version: "test".into(),
         signature_bands: None,
         max_tracks: None,
+        base_limits: Default::default(),
     }
 }
 

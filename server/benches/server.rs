@@ -281,6 +281,7 @@ fn planner_robot(k: usize, x: f64, y: f64) -> RobotState {
         base_from_array: Isometry3::translation(0.0, 0.0, 0.5),
         sigma_rad: 3f64.to_radians(),
         active_goal: None,
+        base: Default::default(),
     }
 }
 
@@ -421,6 +422,7 @@ fn hello(i: usize, folded: bool) -> wire::RobotMessage {
         software_version: "bench".into(),
         signature_bands: None,
         max_tracks: None,
+        base_limits: Default::default(),
     };
     wire::RobotMessage { msg: Some(Up::Hello(h.to_wire())) }
 }
@@ -731,6 +733,7 @@ fn bench_sources(quick: bool) {
                         software_version: "bench".into(),
                         signature_bands: None,
                         max_tracks: Some(4),
+                        base_limits: Default::default(),
                     };
                     c.connect(t0, hello, None).unwrap().conn
                 })

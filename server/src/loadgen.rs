@@ -72,6 +72,7 @@ pub fn hello(id: &str) -> Result<wire::RobotMessage, soundmap_proto::ValidationE
         software_version: "soundmap-load".into(),
         signature_bands: None,
         max_tracks: None,
+        base_limits: Default::default(),
     };
     Ok(wire::RobotMessage { msg: Some(Up::Hello(h.to_wire())) })
 }

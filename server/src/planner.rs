@@ -91,6 +91,8 @@ pub struct Planner {
 struct RobotCycle {
     p0: Point2<f64>,
     bounds: (f64, f64),
+    /// Largest move this cycle at its own speed (m).
+    step: f64,
     /// Final target spot (free), if one was found in the robot's wedge.
     target: Option<Point2<f64>>,
     note: Option<String>,
@@ -177,7 +179,9 @@ impl Planner {
         let src = s.predicted(cfg.source_lead_s);
         let centre = Point2::new(src.x, src.y);
         let robots = &input.robots;
-        let step = cfg.step_for_period_m(period);
+        // Each robot's step at its own speed.
+        let steps: Vec<f64> =
+            robots.iter().map(|r| cfg.step_at_speed_m(cfg.speed_of(&r.base), period)).collect();
 
         let now_sensors: Vec<Sensor> = robots
             .iter()
@@ -199,6 +203,8 @@ impl Planner {
                     pose::wrap(d.y.atan2(d.x) - b).abs() < std::f64::consts::FRAC_PI_4
                 }),
                 heading_rad: Some(r.map_from_base.rotation.euler_angles().2),
+                travel_scale: cfg.robot_speed_m_per_s / cfg.speed_of(&r.base),
+                turn_cost_m_per_rad: cfg.turn_cost_m_per_rad(&r.base),
             })
             .collect();
         let settings = PatternSettings {
@@ -207,9 +213,6 @@ impl Planner {
             switch_weight: cfg.pattern_switch_weight,
             blocked_penalty_m: 0.0,
             info_weight_m: cfg.pattern_info_weight_m,
-            turn_cost_m_per_rad: cfg
-                .robot_turn_rate_deg_per_s
-                .map_or(0.0, |rate| cfg.robot_speed_m_per_s / rate.to_radians()),
         };
         let ideal = choose_pattern(&src, &pattern_robots, &settings, None);
         // Penalising blocked spots only raises the cost of candidates with one, so
@@ -222,7 +225,7 @@ impl Planner {
             ideal.clone()
         };
         let half = cfg.wedge_half_width_deg.to_radians().min(0.45 * chosen.min_spacing_rad);
-        let per_robot = self.resolve_targets(&centre, robots, &ideal, &chosen, half, step);
+        let per_robot = self.resolve_targets(&centre, robots, &ideal, &chosen, half, &steps);
 
         // Decide.
         let target_sensors: Vec<Sensor> = robots
@@ -274,7 +277,7 @@ impl Planner {
             ahead: centre,
             radius_m: cfg.min_range_m,
         };
-        let cycle = match self.waypoints(&src, &keep, robots, &per_robot, half, step) {
+        let cycle = match self.waypoints(&src, &keep, robots, &per_robot, half) {
             Ok(w) => w,
             Err(reason) => return PlanOutcome::Infeasible(reason),
         };
@@ -358,7 +361,7 @@ impl Planner {
         ideal: &TargetPattern,
         chosen: &TargetPattern,
         half: f64,
-        step: f64,
+        steps: &[f64],
     ) -> Vec<RobotCycle> {
         let cfg = &self.config;
         robots
@@ -366,6 +369,7 @@ impl Planner {
             .enumerate()
             .map(|(i, r)| {
                 let p0 = r.base_xy();
+                let step = steps[i];
                 let bounds =
                     cycle::range_bounds((p0 - centre).norm(), cfg.min_range_m, cfg.max_range_m, step);
                 let spot = chosen.spots[i];
@@ -396,7 +400,7 @@ impl Planner {
                     )),
                     _ => None,
                 };
-                RobotCycle { p0, bounds, target, note }
+                RobotCycle { p0, bounds, step, target, note }
             })
             .collect()
     }
@@ -465,9 +469,11 @@ impl Planner {
             let p0 = input.robots[g.robot].base_xy();
             let centre = Point2::new(g.look_at_in_map.x, g.look_at_in_map.y);
             let me = g.robot;
+            // The robot's own step over the configured period.
+            let step = cfg.step_at_speed_m(cfg.speed_of(&input.robots[me].base), cfg.planning_period_s);
             // Why a pushed spot is refused (`None`: it is allowed).
             let refusal = |out: &Point2<f64>| {
-                if (out - p0).norm() > cfg.step_m() {
+                if (out - p0).norm() > step {
                     Some("take it beyond the step".to_string())
                 } else if (out - centre).norm() > cfg.max_range_m {
                     Some("take it beyond the largest range".to_string())
@@ -490,7 +496,7 @@ impl Planner {
             };
             // Straight out where that is within the step (any other straight
             // push is refused by the step), else drawn back first.
-            let push = |clearance: f64| escape::push_out_within(&served, &q, clearance, &p0, cfg.step_m());
+            let push = |clearance: f64| escape::push_out_within(&served, &q, clearance, &p0, step);
             let allowed = |out: &Point2<f64>| refusal(out).is_none();
             // Why the full straight push is refused (with no push within the
             // step, the step's refusal of the straight one).
@@ -736,6 +742,7 @@ mod tests {
             base_from_array: Isometry3::translation(0.0, 0.0, 0.5),
             sigma_rad: 3f64.to_radians(),
             active_goal: goal.map(|(gx, gy)| Isometry3::translation(gx, gy, 0.0)),
+            base: Default::default(),
         }
     }
 

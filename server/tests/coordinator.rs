@@ -39,6 +39,7 @@ fn hello(id: &str) -> Hello {
         software_version: "t".into(),
         signature_bands: None,
         max_tracks: None,
+        base_limits: Default::default(),
     }
 }
 

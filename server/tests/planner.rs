@@ -30,6 +30,7 @@ fn robot(k: usize, x: f64, y: f64) -> RobotState {
         base_from_array: Isometry3::translation(0.0, 0.0, ARRAY_HEIGHT_M),
         sigma_rad: sigma(),
         active_goal: None,
+        base: Default::default(),
     }
 }
 
@@ -261,6 +262,8 @@ fn pattern_choice_has_least_travel_among_equivalent_patterns() {
                 sigma_rad: sigma(),
                 previous_bearing_rad: None,
                 heading_rad: None,
+                travel_scale: 1.0,
+                turn_cost_m_per_rad: 0.0,
             })
             .collect();
         let settings = PatternSettings {
@@ -269,7 +272,6 @@ fn pattern_choice_has_least_travel_among_equivalent_patterns() {
             switch_weight: 0.0,
             blocked_penalty_m: 0.0,
             info_weight_m: 0.0,
-            turn_cost_m_per_rad: 0.0,
         };
         let p = choose_pattern(&src, &robots, &settings, None);
         // Brute force: both optimal spacings, every rotation on a 0.25° grid, every assignment.

@@ -172,6 +172,18 @@ async fn bad_hellos_end_the_stream_with_a_status_and_others_carry_on() {
             "hello.array.microphone_count",
         ),
         (
+            {
+                let mut h = hello("c");
+                if let Some(Up::Hello(h)) = &mut h.msg {
+                    h.base_limits =
+                        Some(wire::BaseLimits { max_speed_m_per_s: f64::NAN, max_turn_rate_deg_per_s: 0.0 });
+                }
+                h
+            },
+            Code::InvalidArgument,
+            "hello.base_limits.max_speed_m_per_s",
+        ),
+        (
             wire::RobotMessage { msg: Some(Up::Heartbeat(wire::Heartbeat { stamp_ns: 1 })) },
             Code::InvalidArgument,
             "msg",

@@ -10,7 +10,7 @@ use crate::common;
 use common::fleet::{Answer, Fleet, time_of};
 use common::*;
 use nalgebra::Point3;
-use soundmap_proto::wire;
+use soundmap_proto::{BaseLimits, wire};
 use soundmap_server::CoordinatorConfig;
 use tonic::Code;
 
@@ -141,6 +141,37 @@ async fn side_by_side_robots_are_sent_into_the_band_and_the_planner_holds() {
     for r in &state(addr).await.robots {
         assert_eq!(r.active_command_state, wire::CommandState::Succeeded as i32, "{}", r.robot_id);
     }
+    coordinator.shutdown().await.unwrap();
+}
+
+/// Each robot's goals are planned for the speed its hello declares: from the
+/// paper's failure case, a base declaring 0.1 m/s is sent no farther than it
+/// drives in 1.5 planning periods, the other (0.8 m/s) up to the configured
+/// largest step; GetState shows what each declared.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn goals_follow_each_robots_declared_speed() {
+    let (coordinator, clock) = start(config(true)).await;
+    let addr = coordinator.local_addr;
+    let slow = BaseLimits { max_speed_m_per_s: Some(0.1), max_turn_rate_deg_per_s: Some(90.0) };
+    let fast = BaseLimits { max_speed_m_per_s: Some(0.8), max_turn_rate_deg_per_s: None };
+    let mut fleet = Fleet::connect_declaring(addr, &["a", "b"], &SIDE_BY_SIDE, SOURCE, &[slow, fast]).await;
+    let s = state(addr).await;
+    for (id, declared) in [("a", slow), ("b", fast)] {
+        let r = s.robots.iter().find(|r| r.robot_id == id).expect("listed");
+        assert_eq!(r.base_limits, declared.to_wire(), "{id}");
+    }
+    fleet.step(&clock).await;
+    fleet.step(&clock).await;
+    let planner = config(true).planner;
+    let moved = |i: usize| {
+        let c = &fleet.commands[i].first().unwrap_or_else(|| panic!("robot {i} commanded")).command;
+        let g = c.goal_map_from_base.as_ref().unwrap().translation_m.as_ref().unwrap();
+        (g.x - SIDE_BY_SIDE[i].x).hypot(g.y - SIDE_BY_SIDE[i].y)
+    };
+    let (a, b) = (moved(0), moved(1));
+    let slow_step = 1.5 * 0.1 * planner.planning_period_s;
+    assert!(a > 0.05 && a <= slow_step + 1e-6, "the slow robot moves {a:.3} m (step {slow_step} m)");
+    assert!(b > 2.0 * slow_step && b <= planner.max_step_m + 1e-6, "the fast robot moves {b:.3} m");
     coordinator.shutdown().await.unwrap();
 }
 

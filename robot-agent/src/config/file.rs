@@ -5,7 +5,7 @@ use std::path::{Path, PathBuf};
 use std::time::Duration;
 
 use serde::Deserialize;
-use soundmap_proto::{RobotId, Stamp};
+use soundmap_proto::{BaseLimits, RobotId, Stamp};
 
 use super::{
     AgentConfig, AudioConfig, CoordinatorConfig, DoaSource, NavigatorConfig, OdasConfig, OdasInput,
@@ -162,11 +162,18 @@ struct DoaFile {
 struct NavigatorFile {
     path: PathBuf,
     arrival_tolerance_m: f64,
+    max_speed_m_per_s: Option<f64>,
+    max_turn_rate_deg_per_s: Option<f64>,
 }
 
 impl Default for NavigatorFile {
     fn default() -> Self {
-        NavigatorFile { path: PathBuf::from("-"), arrival_tolerance_m: 0.25 }
+        NavigatorFile {
+            path: PathBuf::from("-"),
+            arrival_tolerance_m: 0.25,
+            max_speed_m_per_s: None,
+            max_turn_rate_deg_per_s: None,
+        }
     }
 }
 
@@ -284,9 +291,30 @@ impl AgentFile {
         if !(self.navigator.arrival_tolerance_m.is_finite() && self.navigator.arrival_tolerance_m > 0.0) {
             return Err(c.err("navigator.arrival_tolerance_m", "must be positive"));
         }
+        let limit = |v: Option<f64>, field: &str, max: f64, unit: &str| match v {
+            Some(v) if !(v > 0.0 && v <= max) => {
+                Err(c.err(field, format!("must be in (0, {max}] {unit}, is {v}")))
+            }
+            v => Ok(v),
+        };
+        let base_limits = BaseLimits {
+            max_speed_m_per_s: limit(
+                self.navigator.max_speed_m_per_s,
+                "navigator.max_speed_m_per_s",
+                BaseLimits::MAX_SPEED_M_PER_S,
+                "m/s",
+            )?,
+            max_turn_rate_deg_per_s: limit(
+                self.navigator.max_turn_rate_deg_per_s,
+                "navigator.max_turn_rate_deg_per_s",
+                BaseLimits::MAX_TURN_RATE_DEG_PER_S,
+                "degrees/s",
+            )?,
+        };
         let navigator = NavigatorConfig {
             path: c.resolve(self.navigator.path),
             arrival_tolerance_m: self.navigator.arrival_tolerance_m,
+            base_limits,
         };
         let link = self.link.validate(&c, &coordinator)?;
         let odas_out = self.odas_out.map(|o| o.validate(&c)).transpose()?;

@@ -28,6 +28,10 @@ fn the_example_config_parses() {
         PoseSource::Tum { path: dir.join("recordings/pioneer-1.tum"), start_s: Some(0.0) }
     );
     assert_eq!(c.navigator.path, dir.join("goals.jsonl"));
+    assert_eq!(
+        c.navigator.base_limits,
+        soundmap_proto::BaseLimits { max_speed_m_per_s: Some(0.8), max_turn_rate_deg_per_s: Some(120.0) }
+    );
     assert_eq!(c.link.buffer_capacity, 1024);
     assert_eq!(c.link.endpoint, c.coordinator.endpoint);
 }
@@ -117,6 +121,14 @@ fn validation_errors_name_the_field() {
         "arrival_tolerance_m = 0",
         "navigator.arrival_tolerance_m",
         "positive",
+    );
+    fails("max_speed_m_per_s = 0.8", "max_speed_m_per_s = 0", "navigator.max_speed_m_per_s", "(0, 10]");
+    fails("max_speed_m_per_s = 0.8", "max_speed_m_per_s = nan", "navigator.max_speed_m_per_s", "(0, 10]");
+    fails(
+        "max_turn_rate_deg_per_s = 120.0",
+        "max_turn_rate_deg_per_s = 5000.0",
+        "navigator.max_turn_rate_deg_per_s",
+        "(0, 3600]",
     );
     fails("backoff_initial_ms = 200", "backoff_initial_ms = 20000", "link.backoff_initial_ms", "more than");
     fails(

@@ -62,6 +62,7 @@ impl Coordinator {
                     base_from_array: e.hello.array.base_from_array,
                     sigma_rad: e.last_sigma_rad.unwrap_or(default_sigma),
                     active_goal: e.commands.active_goal(now),
+                    base: e.hello.base_limits,
                 })
             })
             .collect();

@@ -121,6 +121,7 @@ impl RobotEntry {
             map_from_base: self.last_map_from_base,
             array: &self.hello.array,
             software_version: &self.hello.software_version,
+            base_limits: self.hello.base_limits,
             observations_accepted: self.accepted,
             observations_rejected: self.rejected,
             active_command: self.commands.current.as_ref().map(|(c, s)| (c, *s)),

@@ -12,8 +12,8 @@
 //!
 //! Every pattern is rotated over a grid (then refined) and the robots are
 //! assigned to its slots by minimum-cost matching. The cost of a candidate is
-//! Σ (travel (straight line, m) + turn cost × the turn towards the spot
-//! before the drive) + switch weight × arc between each robot's new and
+//! Σ (travel (straight line, m) × the robot's travel scale + turn cost × the
+//! turn towards the spot before the drive) + switch weight × arc between each robot's new and
 //! previous target bearing + penalty × blocked spots − info weight × ln det J.
 //!
 //! **Turns counted as travel** (experimental, off unless `[planner]
@@ -59,6 +59,13 @@ pub struct PatternRobot {
     pub previous_bearing_rad: Option<f64>,
     /// Heading of the base (rad, map frame), if known.
     pub heading_rad: Option<f64>,
+    /// Its travel's cost per metre: the fleet's reference speed over its
+    /// own (1 for a robot as fast as `robot_speed_m_per_s`), so that costs
+    /// compare times and a slow robot takes the nearer spot.
+    pub travel_scale: f64,
+    /// Cost per radian it turns towards its spot before it drives there (m at
+    /// the reference speed; reference speed ÷ its turn rate), 0: turns not counted.
+    pub turn_cost_m_per_rad: f64,
 }
 
 /// How candidates are generated and scored.
@@ -74,9 +81,6 @@ pub struct PatternSettings {
     pub blocked_penalty_m: f64,
     /// Cost per unit of −ln det J (m).
     pub info_weight_m: f64,
-    /// Cost per radian a robot turns towards its spot before it drives there
-    /// (m; robot speed ÷ turn rate).
-    pub turn_cost_m_per_rad: f64,
 }
 
 /// The chosen target pattern.
@@ -202,12 +206,13 @@ fn evaluate(
             // The turn towards the spot before the drive; not the one to face
             // the source on arrival (see the module docs).
             let turn = match r.heading_rad {
-                Some(h) if s.turn_cost_m_per_rad > 0.0 && travel > AT_SPOT_M => {
+                Some(h) if r.turn_cost_m_per_rad > 0.0 && travel > AT_SPOT_M => {
                     wrap(d.y.atan2(d.x) - h).abs()
                 }
                 _ => 0.0,
             };
-            cost[i * n + j] = travel + s.switch_weight * switch + s.turn_cost_m_per_rad * turn;
+            cost[i * n + j] =
+                r.travel_scale * travel + s.switch_weight * switch + r.turn_cost_m_per_rad * turn;
         }
     }
     let (slot, assigned) = assign(&cost, n);
@@ -251,6 +256,8 @@ mod tests {
             sigma_rad: 0.05,
             previous_bearing_rad: None,
             heading_rad: None,
+            travel_scale: 1.0,
+            turn_cost_m_per_rad: 0.0,
         }
     }
 
@@ -261,7 +268,6 @@ mod tests {
             switch_weight: 0.0,
             blocked_penalty_m: 0.0,
             info_weight_m: 0.0,
-            turn_cost_m_per_rad: 0.0,
         }
     }
 
@@ -315,16 +321,38 @@ mod tests {
         };
         let by_travel = choose_pattern(&src, &robots, &settings(), None);
         assert_eq!(ahead(&by_travel), [false, true, true], "{by_travel:?}");
-        let turns = PatternSettings { turn_cost_m_per_rad: 0.8 / 120f64.to_radians(), ..settings() };
-        let by_time = choose_pattern(&src, &robots, &turns, None);
+        let counted =
+            |r: &PatternRobot| PatternRobot { turn_cost_m_per_rad: 0.8 / 120f64.to_radians(), ..r.clone() };
+        let turning: Vec<PatternRobot> = robots.iter().map(counted).collect();
+        let by_time = choose_pattern(&src, &turning, &settings(), None);
         assert_eq!(ahead(&by_time), [true, true, true], "{by_time:?}");
         assert!(by_time.travel_m > by_travel.travel_m, "{by_time:?} vs {by_travel:?}");
         // Without headings the cost is travel alone, whatever the weight.
-        let blind: Vec<PatternRobot> =
-            robots.iter().map(|r| PatternRobot { heading_rad: None, ..r.clone() }).collect();
+        let blind = |r: &PatternRobot| PatternRobot { heading_rad: None, ..r.clone() };
         assert_eq!(
-            choose_pattern(&src, &blind, &turns, None),
-            choose_pattern(&src, &blind, &settings(), None)
+            choose_pattern(&src, &turning.iter().map(blind).collect::<Vec<_>>(), &settings(), None),
+            choose_pattern(&src, &robots.iter().map(blind).collect::<Vec<_>>(), &settings(), None)
         );
+    }
+
+    /// Costs compare times: of two robots, the slow one takes the spot
+    /// nearer to it even when giving it to the fast one would be less
+    /// travel in all.
+    #[test]
+    fn a_slow_robot_takes_the_nearer_spot() {
+        let src = Point3::new(0.0, 0.0, 0.5);
+        // Spots are 2 m out at two bearings 90° apart; A sits near the first
+        // slot ring, B a little beyond, both on the same side.
+        let a = robot(1.9, 0.3, 0.5);
+        let b = robot(2.6, 0.0, 0.5);
+        let even = choose_pattern(&src, &[a.clone(), b.clone()], &settings(), None);
+        let slow_b = PatternRobot { travel_scale: 4.0, ..b.clone() };
+        let uneven = choose_pattern(&src, &[a.clone(), slow_b], &settings(), None);
+        let travel = |p: &TargetPattern, r: &PatternRobot, i: usize| (p.spots[i] - r.base_xy).norm();
+        // Equal speeds: the least travel in all.
+        assert!(even.travel_m <= uneven.travel_m + 1e-9, "{even:?} vs {uneven:?}");
+        // B four times slower: it drives less than before, A more.
+        assert!(travel(&uneven, &b, 1) < travel(&even, &b, 1) - 0.05, "{even:?} vs {uneven:?}");
+        assert!(travel(&uneven, &a, 0) > travel(&even, &a, 0), "{even:?} vs {uneven:?}");
     }
 }

@@ -1,7 +1,7 @@
 //! Planner settings (TOML section `[planner]`), their defaults and validation.
 
 use serde::Deserialize;
-use soundmap_proto::{Problem, ValidationError};
+use soundmap_proto::{BaseLimits, Problem, ValidationError};
 
 use super::free_space::{FreeSpaceConfig, polygon_problem};
 
@@ -66,11 +66,14 @@ pub struct PlannerConfig {
     /// Largest move per planning cycle (m); the cycle's step is
     /// min(this, robot speed × planning period). Default 1.0.
     pub max_step_m: f64,
-    /// Robot cruise speed (m/s). Default 0.5. The key `robot_speed_mps` is
+    /// Cruise speed (m/s) of a robot whose hello declares none
+    /// (`BaseLimits`), and the reference speed travel times are counted in
+    /// when target spots are assigned. Default 0.5. The key `robot_speed_mps` is
     /// accepted as an alias (metres per second are spelled `_m_per_s` in every key).
     #[serde(alias = "robot_speed_mps")]
     pub robot_speed_m_per_s: f64,
-    /// Robot turn rate in place (degrees/s), experimental, unset by default.
+    /// Robot turn rate in place (degrees/s), experimental, unset by default;
+    /// a robot whose hello declares its turn rate uses its own.
     /// When set, the target pattern's choice counts the turn a robot makes
     /// towards its spot before it drives as travel, speed ÷ turn rate metres
     /// per radian, so that a base that turns in place is not sent behind
@@ -207,7 +210,28 @@ impl PlannerConfig {
 
     /// The step for a re-tasking period of `period_s` (see [`Self::step_m`]).
     pub fn step_for_period_m(&self, period_s: f64) -> f64 {
-        self.max_step_m.min(1.5 * self.robot_speed_m_per_s * period_s)
+        self.step_at_speed_m(self.robot_speed_m_per_s, period_s)
+    }
+
+    /// The step of a base driving at `speed_m_per_s` for a re-tasking period
+    /// of `period_s` (see [`Self::step_m`]).
+    pub fn step_at_speed_m(&self, speed_m_per_s: f64, period_s: f64) -> f64 {
+        self.max_step_m.min(1.5 * speed_m_per_s * period_s)
+    }
+
+    /// A robot's speed (m/s): what its hello declared, else `robot_speed_m_per_s`.
+    pub fn speed_of(&self, base: &BaseLimits) -> f64 {
+        base.max_speed_m_per_s.unwrap_or(self.robot_speed_m_per_s)
+    }
+
+    /// What a radian turned in place costs a robot, in metres driven at
+    /// `robot_speed_m_per_s` in the same time: 0 unless
+    /// `robot_turn_rate_deg_per_s` is set (turns counted, experimental); the
+    /// robot's declared turn rate, else that setting.
+    pub fn turn_cost_m_per_rad(&self, base: &BaseLimits) -> f64 {
+        self.robot_turn_rate_deg_per_s.map_or(0.0, |rate| {
+            self.robot_speed_m_per_s / base.max_turn_rate_deg_per_s.unwrap_or(rate).to_radians()
+        })
     }
 
     /// The re-tasking period for a source moving at `speed_m_per_s`

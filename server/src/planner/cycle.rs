@@ -132,18 +132,21 @@ pub(crate) fn nearest_free_in_wedge(
 }
 
 /// Separations to keep this cycle between robots at `p0` (pairs that could
-/// come closer than `d_sep` within one step each).
+/// come closer than `d_sep` within one step each; `steps` per robot).
 pub(crate) fn separations(
     p0: &[Point2<f64>],
     targets: &[Point2<f64>],
     d_sep: f64,
-    step: f64,
+    steps: &[f64],
 ) -> Vec<Separation> {
     let mut out = Vec::new();
     for i in 0..p0.len() {
         for j in (i + 1)..p0.len() {
             let d = p0[i] - p0[j];
             let dist = d.norm();
+            // Both move at most their steps; `step` is their mean, so that
+            // equal steps keep the pair's old bounds exactly.
+            let step = 0.5 * (steps[i] + steps[j]);
             if dist > d_sep + 2.0 * step + 1e-6 || d_sep <= 0.0 {
                 continue;
             }

@@ -1,7 +1,7 @@
 //! What the planner is given each cycle: the source estimate and the robots.
 
 use nalgebra::{Isometry3, Matrix3, Point2, Point3, Vector3};
-use soundmap_proto::RobotId;
+use soundmap_proto::{BaseLimits, RobotId};
 
 /// The tracked source, map frame.
 #[derive(Clone, Debug, PartialEq)]
@@ -49,6 +49,9 @@ pub struct RobotState {
     pub sigma_rad: f64,
     /// The goal it is driving to, when busy with a previous command.
     pub active_goal: Option<Isometry3<f64>>,
+    /// Its base's speed and turn rate as its hello declared them (the
+    /// `[planner]` settings stand in for what it did not declare).
+    pub base: BaseLimits,
 }
 
 impl RobotState {

@@ -38,7 +38,6 @@ impl Planner {
         robots: &[RobotState],
         per_robot: &[RobotCycle],
         half: f64,
-        step: f64,
     ) -> Result<Waypoints, InfeasibleReason> {
         let cfg = &self.config;
         let centre = Point2::new(src.x, src.y);
@@ -51,9 +50,9 @@ impl Planner {
                 break;
             };
             let d = t - centre;
-            let (mut via, psi) = cycle::via_point(&centre, &c.p0, d.y.atan2(d.x), d.norm(), c.bounds, step);
+            let (mut via, psi) = cycle::via_point(&centre, &c.p0, d.y.atan2(d.x), d.norm(), c.bounds, c.step);
             if !self.free.is_free(&via) {
-                let reach = Some((&c.p0, 0.9 * step));
+                let reach = Some((&c.p0, 0.9 * c.step));
                 match cycle::nearest_free_in_wedge(&self.free, &centre, &via, psi, half, c.bounds, reach) {
                     Some(q) => via = q,
                     None => {
@@ -73,7 +72,7 @@ impl Planner {
                 wedge_half_rad: half,
                 range_lo: c.bounds.0,
                 range_hi: c.bounds.1,
-                step,
+                step: c.step,
                 region,
             });
         }
@@ -82,17 +81,18 @@ impl Planner {
         } else {
             p0.clone()
         };
-        let seps = cycle::separations(&p0, &heading, cfg.min_separation_m, step);
+        let steps: Vec<f64> = per_robot.iter().map(|c| c.step).collect();
+        let seps = cycle::separations(&p0, &heading, cfg.min_separation_m, &steps);
         if why_not_qp.is_none() {
             match qp::solve(&centre, &cycle_robots, &seps, cfg.goal_weight) {
-                QpOutcome::Solved(w) if self.check(&centre, keep, per_robot, &w, &seps, step) => {
+                QpOutcome::Solved(w) if self.check(&centre, keep, per_robot, &w, &seps) => {
                     // The way to the target pattern can pass through a poor
                     // geometry (a robot swinging round a source that walked
                     // close to it). Then the sampling search, which scores this
                     // cycle's geometry, decides when it keeps θ nearer the band.
                     let outside = self.degrees_out_of_band(src, robots, &w);
                     if outside > 0.0 {
-                        let sample_robots = sample_robots(robots, per_robot, &cycle_robots, step);
+                        let sample_robots = sample_robots(robots, per_robot, &cycle_robots);
                         let band = (cfg.theta_min_deg, cfg.theta_max_deg);
                         if let SampleOutcome::Found(v) = sampling::search(
                             src,
@@ -102,7 +102,7 @@ impl Planner {
                             band,
                             keep,
                             &cfg.sampling,
-                        ) && self.check(&centre, keep, per_robot, &v, &seps, step)
+                        ) && self.check(&centre, keep, per_robot, &v, &seps)
                             && self.degrees_out_of_band(src, robots, &v) < outside
                         {
                             return Ok(Waypoints {
@@ -129,11 +129,11 @@ impl Planner {
                 QpOutcome::Failed(m) => why_not_qp = Some(format!("convex problem failed: {m}")),
             }
         }
-        let sample_robots = sample_robots(robots, per_robot, &cycle_robots, step);
+        let sample_robots = sample_robots(robots, per_robot, &cycle_robots);
         let band = (cfg.theta_min_deg, cfg.theta_max_deg);
         let why = why_not_qp.unwrap_or_default();
         match sampling::search(src, &sample_robots, &seps, &self.free, band, keep, &cfg.sampling) {
-            SampleOutcome::Found(w) if self.check(&centre, keep, per_robot, &w, &seps, step) => {
+            SampleOutcome::Found(w) if self.check(&centre, keep, per_robot, &w, &seps) => {
                 Ok(Waypoints { spots: w, separations: seps, used_fallback: true, why_fallback: Some(why) })
             }
             SampleOutcome::Found(_) => Err(InfeasibleReason::NoJointPlacement {
@@ -185,14 +185,13 @@ impl Planner {
         per_robot: &[RobotCycle],
         w: &[Point2<f64>],
         seps: &[Separation],
-        step: f64,
     ) -> bool {
         w.len() == per_robot.len()
             && w.iter().zip(per_robot).all(|(q, c)| {
                 let rho = (q - centre).norm();
                 q.x.is_finite()
                     && q.y.is_finite()
-                    && (q - c.p0).norm() <= step + CHECK_TOL_M
+                    && (q - c.p0).norm() <= c.step + CHECK_TOL_M
                     && rho >= c.bounds.0 - CHECK_TOL_M
                     && rho <= c.bounds.1 + CHECK_TOL_M
                     && self.free.is_free(q)
@@ -283,7 +282,6 @@ fn sample_robots(
     robots: &[RobotState],
     per_robot: &[RobotCycle],
     cycle_robots: &[CycleRobot],
-    step: f64,
 ) -> Vec<SampleRobot> {
     robots
         .iter()
@@ -294,7 +292,7 @@ fn sample_robots(
             base_from_array: r.base_from_array,
             sigma_rad: r.sigma_rad,
             range: c.bounds,
-            step,
+            step: c.step,
             heading: cycle_robots.get(i).map(|cr| cr.target),
         })
         .collect()

@@ -5,10 +5,10 @@
 use nalgebra::{Isometry3, Point3, Vector3};
 use soundmap_proto::wire::coordinator_message::Msg as Down;
 use soundmap_proto::wire::robot_message::Msg as Up;
-use soundmap_proto::{Stamp, wire};
+use soundmap_proto::{BaseLimits, Stamp, wire};
 use soundmap_server::clock::ManualClock;
 
-use super::{Robot, T0, connect, observation_of};
+use super::{Robot, T0, hello, observation_of, open};
 
 /// How a robot answers commands.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -62,9 +62,24 @@ impl Fleet {
         bases: &[Point3<f64>],
         source: Point3<f64>,
     ) -> Self {
+        Self::connect_declaring(addr, ids, bases, source, &vec![BaseLimits::default(); ids.len()]).await
+    }
+
+    /// [`Fleet::connect`] with each robot declaring its base's limits in its hello.
+    pub async fn connect_declaring(
+        addr: std::net::SocketAddr,
+        ids: &[&str],
+        bases: &[Point3<f64>],
+        source: Point3<f64>,
+        limits: &[BaseLimits],
+    ) -> Self {
         let mut robots = Vec::new();
-        for id in ids {
-            robots.push(connect(addr, id).await);
+        for (id, l) in ids.iter().zip(limits) {
+            let mut first = hello(id);
+            if let Some(Up::Hello(h)) = &mut first.msg {
+                h.base_limits = l.to_wire();
+            }
+            robots.push(open(addr, first, None).await.unwrap());
         }
         let n = ids.len();
         Fleet {

@@ -50,6 +50,7 @@ pub fn hello(id: &str) -> wire::RobotMessage {
         software_version: "test".into(),
         signature_bands: None,
         max_tracks: None,
+        base_limits: Default::default(),
     }
     .to_wire();
     h.robot_id = id.into();

@@ -17,7 +17,9 @@ use soundmap_agent::link::Hop;
 use soundmap_agent::navigator::Navigator as AgentNavigator;
 use soundmap_agent::pipeline::{Pipeline, PipelineConfig};
 use soundmap_agent::pose::{PoseBufferConfig, StampedPose};
-use soundmap_proto::{CommandAck, CommandProgress, CommandState, Hello, RepositionCommand, RobotId, Stamp};
+use soundmap_proto::{
+    BaseLimits, CommandAck, CommandProgress, CommandState, Hello, RepositionCommand, RobotId, Stamp,
+};
 
 use crate::acoustics::{ArrayConfig, ArrayRenderer, DiffuseNoiseConfig, Scene};
 use crate::error::SimError;
@@ -210,7 +212,12 @@ impl SimRobot {
         let channels = array.channels();
         let id = RobotId::parse(&spec.id, "robots.id")?;
         let version = concat!("soundmap-sim ", env!("CARGO_PKG_VERSION")).into();
-        let hello = pipeline_config.declare_tracks(agent::hello(id.clone(), &array, version))?;
+        let mut hello = pipeline_config.declare_tracks(agent::hello(id.clone(), &array, version))?;
+        // The base declares its limits, as an agent's `[navigator]` does.
+        hello.base_limits = BaseLimits {
+            max_speed_m_per_s: Some(spec.max_speed_m_per_s),
+            max_turn_rate_deg_per_s: Some(spec.max_turn_rate_deg_per_s),
+        };
         let core_config = CoreConfig {
             doa_sigma_floor_rad: pipeline.doa_sigma_floor_rad(),
             pose_buffer: PoseBufferConfig { capacity: 4096, ..PoseBufferConfig::default() },
