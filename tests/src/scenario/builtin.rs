@@ -1,7 +1,7 @@
 //! Scenarios shipped with soundmap (`tests/scenarios/*.toml`).
 
 /// Names of the built-in scenarios.
-pub const NAMES: [&str; 15] = [
+pub const NAMES: [&str; 16] = [
     "smoke",
     "paper-static",
     "paper-moving",
@@ -17,6 +17,7 @@ pub const NAMES: [&str; 15] = [
     "far-source",
     "fast-walker",
     "deaf-near-wall",
+    "mixed-fleet",
 ];
 
 /// The TOML text of a built-in scenario.
@@ -37,6 +38,7 @@ pub fn text(name: &str) -> Option<&'static str> {
         "far-source" => include_str!("../../scenarios/far-source.toml"),
         "fast-walker" => include_str!("../../scenarios/fast-walker.toml"),
         "deaf-near-wall" => include_str!("../../scenarios/deaf-near-wall.toml"),
+        "mixed-fleet" => include_str!("../../scenarios/mixed-fleet.toml"),
         _ => return None,
     })
 }
