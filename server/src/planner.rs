@@ -93,6 +93,8 @@ struct RobotCycle {
     bounds: (f64, f64),
     /// Largest move this cycle at its own speed (m).
     step: f64,
+    /// Cost of its travel per metre ([`PlannerConfig::travel_scale`]).
+    travel_scale: f64,
     /// Final target spot (free), if one was found in the robot's wedge.
     target: Option<Point2<f64>>,
     note: Option<String>,
@@ -203,7 +205,7 @@ impl Planner {
                     pose::wrap(d.y.atan2(d.x) - b).abs() < std::f64::consts::FRAC_PI_4
                 }),
                 heading_rad: Some(r.map_from_base.rotation.euler_angles().2),
-                travel_scale: cfg.robot_speed_m_per_s / cfg.speed_of(&r.base),
+                travel_scale: cfg.travel_scale(&r.base),
                 turn_cost_m_per_rad: cfg.turn_cost_m_per_rad(&r.base),
             })
             .collect();
@@ -400,7 +402,7 @@ impl Planner {
                     )),
                     _ => None,
                 };
-                RobotCycle { p0, bounds, step, target, note }
+                RobotCycle { p0, bounds, step, travel_scale: cfg.travel_scale(&r.base), target, note }
             })
             .collect()
     }

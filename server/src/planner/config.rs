@@ -224,6 +224,12 @@ impl PlannerConfig {
         base.max_speed_m_per_s.unwrap_or(self.robot_speed_m_per_s)
     }
 
+    /// What a metre driven costs a robot, in metres driven at
+    /// `robot_speed_m_per_s` in the same time: 1 for a robot of that speed.
+    pub fn travel_scale(&self, base: &BaseLimits) -> f64 {
+        self.robot_speed_m_per_s / self.speed_of(base)
+    }
+
     /// What a radian turned in place costs a robot, in metres driven at
     /// `robot_speed_m_per_s` in the same time: 0 unless
     /// `robot_turn_rate_deg_per_s` is set (turns counted, experimental); the

@@ -36,6 +36,9 @@ pub(crate) struct SampleRobot {
     pub range: (f64, f64),
     /// Largest move (m).
     pub step: f64,
+    /// Its travel's cost per metre relative to a robot at the reference
+    /// speed (see [`super::bearings::PatternRobot::travel_scale`]).
+    pub travel_scale: f64,
     /// This cycle's heading point, offered as a candidate.
     pub heading: Option<Point2<f64>>,
 }
@@ -144,7 +147,7 @@ fn candidates(
                 spot,
                 fisher: fisher_information(&[s], source),
                 dir: if d.norm() > 0.0 { d.normalize() } else { Vector3::x() },
-                travel: (spot - r.p0).norm(),
+                travel: (spot - r.p0).norm() * r.travel_scale,
             }
         })
         .collect()
@@ -299,6 +302,7 @@ mod tests {
             sigma_rad: 0.05,
             range: (1.0, 5.0),
             step,
+            travel_scale: 1.0,
             heading: None,
         }
     }

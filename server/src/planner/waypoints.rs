@@ -293,6 +293,7 @@ fn sample_robots(
             sigma_rad: r.sigma_rad,
             range: c.bounds,
             step: c.step,
+            travel_scale: c.travel_scale,
             heading: cycle_robots.get(i).map(|cr| cr.target),
         })
         .collect()
