@@ -34,7 +34,7 @@
 //! - **sequence numbers and the unacknowledged buffer** ([`ObservationBuffer`]):
 //!   a new stream resends everything unacknowledged, oldest first;
 //! - **command bookkeeping** (accept / refuse / progress / cancel; see
-//!   [`commands`](self::commands) rules);
+//!   `commands` rules);
 //! - **the hello** the link opens each stream with.
 
 mod buffer;

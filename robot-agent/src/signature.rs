@@ -34,7 +34,7 @@
 //! for the K reported tracks. [`Signatures::update`] allocates nothing: the
 //! phasors of each microphone are computed per hop from the direction by
 //! recursion over the bins (two sines and cosines per microphone and 128 bins,
-//! branch-free polynomials in one vectorized pass, [`crate::fastmath`]; the
+//! branch-free polynomials in one vectorized pass, `crate::fastmath`; the
 //! decibels likewise).
 
 use nalgebra::Vector3;

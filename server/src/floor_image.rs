@@ -166,7 +166,7 @@
 //! σ_v = σ / √(sin²e + ρ·cos²e + 1.25·σ), ρ = var(z)/var(horizontal) of the
 //! microphones ([`ArrayPattern::vertical_spread`]; 0.0036 for the 16SoundsUSB
 //! Pioneer preset, 0 for flat boards), the last term the second-order limit
-//! on the plane (E[e²] = 0.8·σ there). With σ = 1°, for the Pioneer preset:
+//! on the plane (E\[e²\] = 0.8·σ there). With σ = 1°, for the Pioneer preset:
 //! σ_v = 6.3° on the plane, 4.7° at e = 8°, 2.7° at 20°, 1.4° at 45°. The reflections
 //! follow the same sensitivity: an image that shifts the horizontal
 //! component by δ shifts the elevation by δ / sin e. The agents' errors
@@ -453,7 +453,7 @@ enum PeakFound {
 }
 
 /// A planar array's radial SRP-PHAT pattern integrated over frequency, from
-/// which the pattern of any band on the [`F_STEP`] grid follows, and the β
+/// which the pattern of any band on the `F_STEP` grid follows, and the β
 /// tables of the bands asked for so far.
 pub struct ArrayPattern {
     /// G(δᵢ, f_k) = mean over pairs and azimuths of ∫₀^f_k cos(2πf·δᵢτ) df
@@ -478,7 +478,7 @@ impl std::fmt::Debug for ArrayPattern {
 
 impl ArrayPattern {
     /// The pattern of the array with microphones at `positions` whose SRP
-    /// covers `band_hz`; `None` as for [`LobeTable::for_array`].
+    /// covers `band_hz`; `None` as for `LobeTable::for_array`.
     pub fn for_array(positions: &[Point3<f64>], band_hz: (f64, f64)) -> Option<ArrayPattern> {
         let usable = (2..=MAX_MICROPHONES).contains(&positions.len())
             && band_hz.0 > 0.0
@@ -627,7 +627,7 @@ fn peak_fraction(at: &impl Fn(f64) -> f64, dc: f64, r2: f64) -> f64 {
 
 /// The pattern of an array shape and declared band, computed once per distinct
 /// shape and kept for the life of the process; `None` when the array is not
-/// planar (or not usable), or when [`MAX_SHAPES`] distinct shapes are held.
+/// planar (or not usable), or when `MAX_SHAPES` distinct shapes are held.
 pub fn array_pattern(positions: &[Point3<f64>], band_hz: (f64, f64)) -> Option<&'static ArrayPattern> {
     type Shapes = Mutex<HashMap<Vec<i64>, Option<&'static ArrayPattern>>>;
     static SHAPES: OnceLock<Shapes> = OnceLock::new();

@@ -27,7 +27,7 @@
 //!    keep it.
 //!
 //! A robot inside the keep-out is sent out of it first, whatever the
-//! re-tasking clock ([`escape`]): that cycle issues only those goals; and an
+//! re-tasking clock (`escape`): that cycle issues only those goals; and an
 //! ordinary cycle's goal that would leave a robot inside is replaced by the
 //! way out.
 //!

@@ -96,7 +96,7 @@ impl Ray {
     /// σ_v² = σ² / (sin²e + ρ·cos²e + 1.25·σ), ρ the vertical-to-horizontal
     /// spread. The last term is the second-order limit on the plane itself,
     /// where a planar array reads e = √(2|n|) from a horizontal error n:
-    /// E[e²] = 0.8·σ. The same sensitivity scales the reflections' pull: an
+    /// E\[e²\] = 0.8·σ. The same sensitivity scales the reflections' pull: an
     /// image that moves the horizontal component by δ moves the elevation by
     /// δ / sin e (see [`crate::floor_image`], "Elevation is resolved worse
     /// than azimuth", for numbers).

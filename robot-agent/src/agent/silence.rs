@@ -8,7 +8,7 @@ pub const SILENT_REPORT_INTERVAL_NS: i64 = 500_000_000;
 /// Observations are sent while tracks exist, plus one empty observation when
 /// they end (so the coordinator learns that the robot hears nothing); further
 /// silent hops send one empty observation every
-/// [`SILENT_REPORT_INTERVAL_NS`] (0.5 s), from the first hop on: a robot that
+/// `SILENT_REPORT_INTERVAL_NS` (0.5 s), from the first hop on: a robot that
 /// hears nothing still tells the coordinator where it is, so the planner can
 /// move it (a deaf robot is sent where it can hear) and its commands reach it.
 ///

@@ -126,7 +126,7 @@ pub struct LinkInputs {
     pub lossless: bool,
 }
 
-/// The live agent's link to the coordinator (see the [module docs](self)).
+/// The live agent's link to the coordinator (see the module docs).
 #[derive(Debug)]
 pub struct Link;
 

@@ -28,7 +28,7 @@
 //! (BENCHMARKS.md, session 15). With a turn rate set, the turn towards the
 //! spot is priced at what it costs in time, robot speed ÷ turn rate metres
 //! per radian (0.38 m/rad at 0.8 m/s and 120°/s); a robot within
-//! [`AT_SPOT_M`] of its spot turns none. The turn on arrival, to face the
+//! `AT_SPOT_M` of its spot turns none. The turn on arrival, to face the
 //! source, is not counted: a robot is usually re-tasked before it arrives,
 //! and counting it made every drive around the source (across the bearing,
 //! the drive that changes θ) dearer than a drive along it (`corner-start`

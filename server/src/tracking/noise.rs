@@ -11,7 +11,7 @@
 //! variance R₀ = σ_eff²·inflation per tangent axis. The filter uses R = λ·R₀
 //! with a scale λ ≥ 1 learned per robot from its innovations ν against the
 //! tracked source. With S = HPHᵀ + R, a consistent model has
-//! E[νᵀν] = tr(HPHᵀ) + 2λR₀, so each DoA gives the sample
+//! E\[νᵀν\] = tr(HPHᵀ) + 2λR₀, so each DoA gives the sample
 //!
 //! ```text
 //! λ̂ = (νᵀν − tr(HPHᵀ)) / (2 R₀) = (νᵀν − tr S + 2λR₀) / (2 R₀)
