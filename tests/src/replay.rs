@@ -243,11 +243,11 @@ pub fn format_intervals(active: &[(f64, f64)]) -> String {
 /// Arguments of `soundmap-sim replay`.
 #[derive(Clone, Debug, clap::Args)]
 pub struct ReplayArgs {
-    /// A robot's recording: id=ID,audio=F.wav,poses=F.tum,array=PRESET|F.toml[,start=S][,pose_std_m=M,yaw_std_deg=D].
+    /// A robot's recording: `id=ID,audio=F.wav,poses=F.tum,array=PRESET|F.toml[,start=S][,pose_std_m=M,yaw_std_deg=D]`.
     #[arg(long = "robot", required = true, value_parser = parse_robot)]
     pub robots: Vec<RobotRecording>,
     /// A true source trajectory (TUM), repeatable, one per source in order:
-    /// FILE.tum[@START-END,START-END...] with the intervals (s) when it played
+    /// `FILE.tum[@START-END,START-END...]` with the intervals (s) when it played
     /// (always without them), e.g. --truth s0.tum --truth s1.tum@0-12,20-30.
     /// Each estimate is scored against the nearest source playing at its stamp;
     /// without any, no RSE is computed.
@@ -267,7 +267,7 @@ pub struct ReplayArgs {
     pub max_pose_gap_s: f64,
     /// A ROS 2 bag (rosbag2 folder or its .mcap file) holding every robot's
     /// audio and tf; each --robot then reads
-    /// id=NAME,audio_topic=TOPIC,array=PRESET[,info_topic=TOPIC][,base_frame=base_link][,map_frame=map],
+    /// `id=NAME,audio_topic=TOPIC,array=PRESET[,info_topic=TOPIC][,base_frame=base_link][,map_frame=map]`,
     /// and --truth files stamp in the bag's clock (Unix seconds).
     #[arg(long, value_name = "BAG")]
     pub rosbag: Option<PathBuf>,
