@@ -181,9 +181,6 @@ impl Planner {
         let src = s.predicted(cfg.source_lead_s);
         let centre = Point2::new(src.x, src.y);
         let robots = &input.robots;
-        // Each robot's step at its own speed.
-        let steps: Vec<f64> =
-            robots.iter().map(|r| cfg.step_at_speed_m(cfg.speed_of(&r.base), period)).collect();
 
         let now_sensors: Vec<Sensor> = robots
             .iter()
@@ -227,7 +224,7 @@ impl Planner {
             ideal.clone()
         };
         let half = cfg.wedge_half_width_deg.to_radians().min(0.45 * chosen.min_spacing_rad);
-        let per_robot = self.resolve_targets(&centre, robots, &ideal, &chosen, half, &steps);
+        let per_robot = self.resolve_targets(&centre, robots, &ideal, &chosen, half, period);
 
         // Decide.
         let target_sensors: Vec<Sensor> = robots
@@ -363,7 +360,7 @@ impl Planner {
         ideal: &TargetPattern,
         chosen: &TargetPattern,
         half: f64,
-        steps: &[f64],
+        period_s: f64,
     ) -> Vec<RobotCycle> {
         let cfg = &self.config;
         robots
@@ -371,7 +368,8 @@ impl Planner {
             .enumerate()
             .map(|(i, r)| {
                 let p0 = r.base_xy();
-                let step = steps[i];
+                // Its step at its own speed.
+                let step = cfg.step_of(&r.base, period_s);
                 let bounds =
                     cycle::range_bounds((p0 - centre).norm(), cfg.min_range_m, cfg.max_range_m, step);
                 let spot = chosen.spots[i];
@@ -472,7 +470,7 @@ impl Planner {
             let centre = Point2::new(g.look_at_in_map.x, g.look_at_in_map.y);
             let me = g.robot;
             // The robot's own step over the configured period.
-            let step = cfg.step_at_speed_m(cfg.speed_of(&input.robots[me].base), cfg.planning_period_s);
+            let step = cfg.step_of(&input.robots[me].base, cfg.planning_period_s);
             // Why a pushed spot is refused (`None`: it is allowed).
             let refusal = |out: &Point2<f64>| {
                 if (out - p0).norm() > step {

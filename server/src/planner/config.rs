@@ -210,13 +210,14 @@ impl PlannerConfig {
 
     /// The step for a re-tasking period of `period_s` (see [`Self::step_m`]).
     pub fn step_for_period_m(&self, period_s: f64) -> f64 {
-        self.step_at_speed_m(self.robot_speed_m_per_s, period_s)
+        self.step_of(&BaseLimits::default(), period_s)
     }
 
-    /// The step of a base driving at `speed_m_per_s` for a re-tasking period
-    /// of `period_s` (see [`Self::step_m`]).
-    pub fn step_at_speed_m(&self, speed_m_per_s: f64, period_s: f64) -> f64 {
-        self.max_step_m.min(1.5 * speed_m_per_s * period_s)
+    /// The step of a robot whose base declared `base`, driving at
+    /// [`Self::speed_of`], for a re-tasking period of `period_s` (see
+    /// [`Self::step_m`]).
+    pub fn step_of(&self, base: &BaseLimits, period_s: f64) -> f64 {
+        self.max_step_m.min(1.5 * self.speed_of(base) * period_s)
     }
 
     /// A robot's speed (m/s): what its hello declared, else `robot_speed_m_per_s`.
