@@ -271,11 +271,7 @@ impl Planner {
         };
 
         // This cycle's waypoints.
-        let keep = cycle::KeepOut {
-            now: Point2::new(s.position_in_map.x, s.position_in_map.y),
-            ahead: centre,
-            radius_m: cfg.min_range_m,
-        };
+        let keep = escape::keep_out(&s.position_in_map, &src, s.fix_in_map.as_ref(), cfg.min_range_m);
         let cycle = match self.waypoints(&src, &keep, robots, &per_robot, half) {
             Ok(w) => w,
             Err(reason) => return PlanOutcome::Infeasible(reason),
@@ -579,8 +575,12 @@ impl Planner {
         std::iter::once(&input.source)
             .chain(&input.others)
             .map(|s| {
-                let keep =
-                    escape::keep_out(&s.position_in_map, &s.predicted(cfg.source_lead_s), cfg.min_range_m);
+                let keep = escape::keep_out(
+                    &s.position_in_map,
+                    &s.predicted(cfg.source_lead_s),
+                    s.fix_in_map.as_ref(),
+                    cfg.min_range_m,
+                );
                 let want =
                     escape::escape_clearance_m(cfg.min_range_m, cfg.keep_out_margin_m, &s.covariance_m2);
                 (keep, want)
@@ -760,6 +760,37 @@ mod tests {
             used_fallback: false,
             note: None,
         }
+    }
+
+    /// The keep-out also covers the way from a lagging track to the newest
+    /// fix of the rays: a goal 1.3 m from the track but 0.8 m from the fix
+    /// is pushed out to 1.3 m from the fix, and a robot 1.2 m from the track
+    /// but 0.7 m from the fix backs out (it would not without the fix).
+    #[test]
+    fn the_keep_out_covers_the_fix_of_a_lagging_track() {
+        let planner = Planner::new(PlannerConfig::default()).unwrap();
+        let track = Point3::new(0.0, 0.0, 1.2);
+        let fix = Point3::new(0.5, 0.0, 1.2);
+        let lagging = SourceEstimate { fix_in_map: Some(fix), ..SourceEstimate::at(track, 0.1) };
+        let input = PlannerInput {
+            source: lagging.clone(),
+            robots: vec![robot(0, 1.8, 0.0, None), robot(1, -1.5, 1.5, None)],
+            others: vec![],
+        };
+        let goals = planner.keep_out_first(&input, vec![goal_at(&input.robots[0], 0, 1.3, 0.0, track)]);
+        let q = xy_of(&goals[0].map_from_base);
+        assert!((q - Point2::new(1.8, 0.0)).norm() < 1e-9, "{q}");
+        let without = PlannerInput { source: SourceEstimate::at(track, 0.1), ..input.clone() };
+        let goals = planner.keep_out_first(&without, vec![goal_at(&without.robots[0], 0, 1.3, 0.0, track)]);
+        assert!((xy_of(&goals[0].map_from_base) - Point2::new(1.3, 0.0)).norm() < 1e-9);
+
+        let near =
+            PlannerInput { robots: vec![robot(0, 1.2, 0.0, None), robot(1, -1.5, 1.5, None)], ..input };
+        let out = planner.escapes(&near);
+        assert_eq!(out.len(), 1);
+        assert_eq!(out[0].reason, RepositionReason::KeepOut);
+        assert!((xy_of(&out[0].map_from_base) - Point2::new(0.5, 0.0)).norm() >= 1.3 - 1e-9);
+        assert!(planner.escapes(&PlannerInput { source: SourceEstimate::at(track, 0.1), ..near }).is_empty());
     }
 
     /// An ordinary goal at the keep-out's edge is pushed out to the escape's

@@ -475,6 +475,7 @@ fn a_precise_walker_is_re_planned_for_sooner() {
                 0.01,
             )),
             velocity_in_map: Some(Vector3::new(0.0, speed, 0.0)),
+            fix_in_map: None,
         },
         robots: robots.clone(),
         others: vec![],
@@ -706,6 +707,7 @@ fn closed_loop(cfg: &PlannerConfig, seed: u64) -> RunStats {
                 velocity_in_map: Some(
                     velocity + Vector3::new(noise.sample(&mut rng), noise.sample(&mut rng), 0.0),
                 ),
+                fix_in_map: None,
             };
             let out = planner.plan(
                 Stamp::from_secs_f64(t),

@@ -11,6 +11,12 @@ use crate::stats::chi2_quantile;
 use crate::tracking::{SmoothedEstimate, TrackEstimate, TrackState};
 use crate::triangulation::{Degeneracy, Gate, GateReason, Method, Triangulation, TriangulationConfig};
 
+/// Farthest the triangulation may lie from a confirmed track, horizontally,
+/// to count as the track's fix for the planner's keep-out (m): further off,
+/// it is an outlier or another source's rays, which the track's own gate
+/// judges.
+pub const FIX_WITHIN_M: f64 = 3.0;
+
 /// One published estimate of a source.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Estimate {
@@ -157,12 +163,27 @@ impl Estimate {
     ///   planner must fix (the paper's θ ≈ 9°), and its covariance says how
     ///   vague it is (the planner refuses beyond `planner.max_source_rms_m`);
     /// - never rays that disagree, a point too far, or no point.
+    ///
+    /// With the filtered state goes the triangulation of the same rays as its
+    /// fix, when the gate accepted it and it lies within [`FIX_WITHIN_M`] of
+    /// the track horizontally: the planner's keep-out covers the way from the
+    /// track to it (a filter following a walker lags behind it).
     pub fn planning_source(&self, triangulation: &TriangulationConfig) -> Result<SourceEstimate, String> {
         if let Some(f) = self.filtered.as_ref().filter(|f| f.state == TrackState::Confirmed) {
+            let fix_in_map = match &self.triangulation {
+                Triangulation::Solved(s)
+                    if s.gate == Gate::Accepted
+                        && (s.source_in_map - f.position_in_map).xy().norm() <= FIX_WITHIN_M =>
+                {
+                    Some(s.source_in_map)
+                }
+                _ => None,
+            };
             return Ok(SourceEstimate {
                 position_in_map: f.position_in_map,
                 covariance_m2: f.position_covariance(),
                 velocity_in_map: Some(f.velocity_in_map),
+                fix_in_map,
             });
         }
         let s = match &self.triangulation {
@@ -181,6 +202,7 @@ impl Estimate {
                 position_in_map: s.source_in_map,
                 covariance_m2: c,
                 velocity_in_map: None,
+                fix_in_map: None,
             }),
             (true, None) => Err("no source estimate: the triangulation has no covariance".into()),
             (false, _) => Err(format!(

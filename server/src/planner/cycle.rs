@@ -183,6 +183,21 @@ mod tests {
     }
 
     #[test]
+    fn the_keep_outs_path_runs_back_to_the_fix() {
+        let plain = KeepOut::new(Point2::new(0.0, 0.0), Point2::new(1.0, 0.0), 1.0);
+        let fixed = KeepOut { fix: Point2::new(0.0, -1.0), ..plain };
+        // Ahead and beside the forward segment: the same.
+        for q in [Point2::new(2.0, 0.0), Point2::new(0.5, 1.0)] {
+            assert_eq!(plain.clearance(&q), fixed.clearance(&q));
+        }
+        // Behind the track, towards the fix: nearer the back segment.
+        let q = Point2::new(0.5, -1.0);
+        assert!((plain.clearance(&q) - 1.0).abs() < 1e-12);
+        assert!((fixed.clearance(&q) - 0.5).abs() < 1e-12);
+        assert_eq!(fixed.nearest_on_path(&q), Point2::new(0.0, -1.0));
+    }
+
+    #[test]
     fn range_bounds_relax_only_outside_the_ring() {
         assert_eq!(range_bounds(3.0, 1.0, 5.0, 1.0), (1.0, 5.0));
         assert_eq!(range_bounds(0.2, 1.0, 5.0, 1.0), (0.7, 5.0));
@@ -195,26 +210,47 @@ mod tests {
 /// `source_lead_s` ahead (the planning centre). A disc around the predicted
 /// point alone would let a goal lie next to a walker that has not got there
 /// yet (1 m ahead at 1 m/s, as far as the keep-out radius).
+///
+/// The path also runs back from the estimate to `fix`, the newest
+/// instantaneous triangulation of the robots' rays (where there is one; else
+/// `fix` is `now`): a filter following a walker lags it by up to half a
+/// metre after a turn or a pause, while the rays already point at where the
+/// walker is (see `SourceEstimate::fix_in_map`).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub(crate) struct KeepOut {
     /// The source now (map xy, m).
     pub now: Point2<f64>,
     /// The source predicted (map xy, m).
     pub ahead: Point2<f64>,
+    /// The newest triangulation of the rays (map xy, m; `now` when none).
+    pub fix: Point2<f64>,
     /// Keep-out radius, r_min (m).
     pub radius_m: f64,
 }
 
 impl KeepOut {
-    /// The point of the source's predicted path nearest `q` (map xy, m).
-    pub fn nearest_on_path(&self, q: &Point2<f64>) -> Point2<f64> {
-        let d = self.ahead - self.now;
-        let len2 = d.norm_squared();
-        let t = if len2 > 0.0 { ((q - self.now).dot(&d) / len2).clamp(0.0, 1.0) } else { 0.0 };
-        self.now + d * t
+    /// The keep-out of a source at `now` predicted at `ahead`, without a fix.
+    pub const fn new(now: Point2<f64>, ahead: Point2<f64>, radius_m: f64) -> Self {
+        KeepOut { now, ahead, fix: now, radius_m }
     }
 
-    /// Distance from `q` to the source's predicted path (m).
+    /// The point of the source's path (fix, now, ahead) nearest `q` (map xy, m).
+    pub fn nearest_on_path(&self, q: &Point2<f64>) -> Point2<f64> {
+        let on_segment = |a: Point2<f64>, b: Point2<f64>| {
+            let d = b - a;
+            let len2 = d.norm_squared();
+            let t = if len2 > 0.0 { ((q - a).dot(&d) / len2).clamp(0.0, 1.0) } else { 0.0 };
+            a + d * t
+        };
+        let forward = on_segment(self.now, self.ahead);
+        if self.fix == self.now {
+            return forward;
+        }
+        let back = on_segment(self.now, self.fix);
+        if (q - back).norm_squared() < (q - forward).norm_squared() { back } else { forward }
+    }
+
+    /// Distance from `q` to the source's path (m).
     pub fn clearance(&self, q: &Point2<f64>) -> f64 {
         (q - self.nearest_on_path(q)).norm()
     }

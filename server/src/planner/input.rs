@@ -12,6 +12,11 @@ pub struct SourceEstimate {
     pub covariance_m2: Matrix3<f64>,
     /// Estimated velocity (m/s), when tracked.
     pub velocity_in_map: Option<Vector3<f64>>,
+    /// The newest instantaneous triangulation of the robots' rays (m), when
+    /// the estimate is a filter's and the triangulation was accepted: the
+    /// keep-out covers the way from the estimate to it as well, because a
+    /// filter following a walker lags behind it (`cycle::KeepOut`).
+    pub fix_in_map: Option<Point3<f64>>,
 }
 
 impl SourceEstimate {
@@ -21,6 +26,7 @@ impl SourceEstimate {
             position_in_map,
             covariance_m2: Matrix3::identity() * sigma_m * sigma_m,
             velocity_in_map: None,
+            fix_in_map: None,
         }
     }
 

@@ -292,8 +292,7 @@ mod tests {
     use crate::uncertainty::angle_at_deg;
 
     /// The keep-out of a still source at the origin.
-    const STILL: KeepOut =
-        KeepOut { now: Point2::new(0.0, 0.0), ahead: Point2::new(0.0, 0.0), radius_m: 1.0 };
+    const STILL: KeepOut = KeepOut::new(Point2::new(0.0, 0.0), Point2::new(0.0, 0.0), 1.0);
 
     fn robot(x: f64, y: f64, step: f64) -> SampleRobot {
         SampleRobot {
@@ -341,7 +340,7 @@ mod tests {
     fn spots_beside_the_walkers_path_are_not_offered() {
         // A walker at (-1, 0) predicted at the origin: spots within 1 m of the
         // segment between are out, even where they are 1 m from the origin.
-        let walker = KeepOut { now: Point2::new(-1.0, 0.0), ahead: Point2::new(0.0, 0.0), radius_m: 1.0 };
+        let walker = KeepOut::new(Point2::new(-1.0, 0.0), Point2::new(0.0, 0.0), 1.0);
         assert!((walker.clearance(&Point2::new(-0.5, 0.8)) - 0.8).abs() < 1e-12);
         assert!((walker.clearance(&Point2::new(-2.0, 0.0)) - 1.0).abs() < 1e-12);
         assert!(!walker.allows(&Point2::new(-1.0, 2.0), &Point2::new(-0.7, 0.9)));
