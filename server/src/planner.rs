@@ -271,7 +271,7 @@ impl Planner {
         };
 
         // This cycle's waypoints.
-        let keep = escape::keep_out(&s.position_in_map, &src, s.fix_in_map.as_ref(), cfg.min_range_m);
+        let keep = escape::keep_out(s, cfg.source_lead_s, cfg.min_range_m);
         let cycle = match self.waypoints(&src, &keep, robots, &per_robot, half) {
             Ok(w) => w,
             Err(reason) => return PlanOutcome::Infeasible(reason),
@@ -575,12 +575,7 @@ impl Planner {
         std::iter::once(&input.source)
             .chain(&input.others)
             .map(|s| {
-                let keep = escape::keep_out(
-                    &s.position_in_map,
-                    &s.predicted(cfg.source_lead_s),
-                    s.fix_in_map.as_ref(),
-                    cfg.min_range_m,
-                );
+                let keep = escape::keep_out(s, cfg.source_lead_s, cfg.min_range_m);
                 let want =
                     escape::escape_clearance_m(cfg.min_range_m, cfg.keep_out_margin_m, &s.covariance_m2);
                 (keep, want)

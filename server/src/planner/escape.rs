@@ -95,6 +95,7 @@ use nalgebra::{Matrix2, Matrix3, Point2, Point3};
 
 use super::cycle::KeepOut;
 use super::free_space::FreeSpace;
+use super::input::SourceEstimate;
 
 /// Ring spacing of the search (m).
 const RING_STEP_M: f64 = 0.1;
@@ -237,15 +238,15 @@ pub(super) fn escape_spot(
     None
 }
 
-/// The keep-out of a source estimate at `now_xy`, predicted at `ahead`.
-pub(super) fn keep_out(
-    now: &Point3<f64>,
-    ahead: &Point3<f64>,
-    fix: Option<&Point3<f64>>,
-    radius_m: f64,
-) -> KeepOut {
+/// The keep-out of source `s`: around its path from its fix (when it has
+/// one) through its estimate to where it is predicted `lead_s` ahead.
+pub(super) fn keep_out(s: &SourceEstimate, lead_s: f64, radius_m: f64) -> KeepOut {
     let xy = |p: &Point3<f64>| Point2::new(p.x, p.y);
-    KeepOut { fix: fix.map_or(xy(now), xy), ..KeepOut::new(xy(now), xy(ahead), radius_m) }
+    let now = xy(&s.position_in_map);
+    KeepOut {
+        fix: s.fix_in_map.as_ref().map_or(now, xy),
+        ..KeepOut::new(now, xy(&s.predicted(lead_s)), radius_m)
+    }
 }
 
 #[cfg(test)]
