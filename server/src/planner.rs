@@ -459,7 +459,9 @@ impl Planner {
         let cfg = &self.config;
         let (served, full) = keeps[0];
         let margin = full - served.radius_m;
-        let before_push = ends(&input.robots, &goals);
+        // Where every robot ends, updated as goals are pushed: a push keeps
+        // `min_separation_m` from the other robots' goals as already pushed.
+        let mut dest = ends(&input.robots, &goals);
         for g in goals.iter_mut().filter(|g| g.reason != RepositionReason::KeepOut) {
             let q = xy_of(&g.map_from_base);
             let p0 = input.robots[g.robot].base_xy();
@@ -478,8 +480,7 @@ impl Planner {
                 } else if !escape::clear_of(&keeps[1..], out, 0.0) {
                     Some("put it inside another source's keep-out".to_string())
                 } else {
-                    before_push
-                        .iter()
+                    dest.iter()
                         .enumerate()
                         .find(|&(j, e)| j != me && (out - e).norm() < cfg.min_separation_m)
                         .map(|(j, _)| {
@@ -506,7 +507,7 @@ impl Planner {
             // robot's destination, a wall).
             let slid = if straight.is_none() && served.clearance(&q) < full - 1e-9 {
                 let rest: Vec<Point2<f64>> =
-                    before_push.iter().enumerate().filter(|&(j, _)| j != me).map(|(_, e)| *e).collect();
+                    dest.iter().enumerate().filter(|&(j, _)| j != me).map(|(_, e)| *e).collect();
                 escape::escape_spot(&keeps, &self.free, &q, &rest, cfg.min_separation_m, |_| 0.0)
                     .filter(allowed)
             } else {
@@ -537,6 +538,7 @@ impl Planner {
                     "{reached:.2} m from the source's path, {full:.2} m wanted: further out would {why}"
                 ));
             }
+            dest[me] = xy_of(&g.map_from_base);
         }
         // They keep the served source's keep-out by construction, not the
         // others'.
