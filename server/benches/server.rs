@@ -196,6 +196,7 @@ fn folded(rays: &[Ray], ceiling_m: Option<f64>) -> Vec<Ray> {
                 lobe,
                 ceiling_m,
                 vertical_spread,
+                upper_branch: true,
             }),
             ..*r
         })
@@ -438,6 +439,7 @@ fn heard_fold() -> FloorFold {
         lobe: ring_pattern().lobe(None),
         ceiling_m: None,
         vertical_spread: None,
+        upper_branch: true,
     }
 }
 

@@ -193,6 +193,37 @@
 //! `three-robots` and `crossing` still lose. It waits for agents that report
 //! a σ as honest for small arrays as for large ones.
 //!
+//! # The fold's two branches
+//!
+//! Arrays at one height fold a source above their plane and its mirror image
+//! below it onto the same DoAs; only the floor term tells them apart, and it
+//! is the part of the model the rooms measured least well (the pull the
+//! simulated rooms show is larger than the model's, and the mirror branch,
+//! nearer its own floor image, models more of it). So the data choose the
+//! branch by the model's error, not by where the source is. Left to the
+//! fits, a white-noise source 0.19 m above two arrays 2.5 m away (RT60
+//! 0.5 s) was placed at its mirror in 83–100 % of the estimates (height
+//! 0.2–0.3 m low, trusted NEES 7–9), and a walking one 0.35 m above them
+//! had its filter cross into the mirror and stay there for 30 s (0.5–0.9 m
+//! low, NEES 100–230) while the ray pairs went back above (BENCHMARKS.md,
+//! "The fold's upper branch").
+//!
+//! Soundmap therefore takes the **upper branch** (`doa.upper_branch`, on by
+//! default) whenever every ray of a fit
+//! (or every robot a filter heard within its support window) is folded and
+//! their arrays lie within [`COPLANAR_M`] of one height ([`fold_plane`]): a
+//! triangulation that converges below the lowest of those arrays is fitted
+//! again from its mirror image above their mean height, and a filter that an
+//! update takes below it is mirrored above it (position and vertical
+//! velocity, covariance alike; the data cannot object, since they are
+//! symmetric up to the floor term). The cost is stated: a source truly below
+//! the arrays (on the floor, under a table) is placed at its mirror image
+//! above them. Most sources a ground robot localizes (voices, devices on
+//! tables and shelves, alarms) are above an array 0.3–0.6 m high. Arrays at
+//! clearly different heights, or straight rays from a process that does not
+//! fold (an ODAS bridge), see the two branches differently and are left to
+//! the fit.
+//!
 //! Assumptions, stated: the array is level (its plane parallel to the floor), the
 //! floor is the plane `doa.base_height_m` below the robot's base frame, and the
 //! floor reflects every frequency with the same R. An array is treated as
@@ -721,6 +752,28 @@ pub fn heard_band(edges_hz: &[f64], levels_db: &[f32], range_db: f64) -> Option<
     Some((edges_hz[first], edges_hz[last + 1]))
 }
 
+/// Arrays whose centres lie within this of one height share one fold plane
+/// (see the module docs, "The fold's two branches") (m).
+pub const COPLANAR_M: f64 = 0.1;
+
+/// The plane that arrays at one height fold every source onto the upper side
+/// of: `(lowest, mean)` height of the array centres `(z, folded)` given (map
+/// frame, m; `folded`: a folded ray whose [`FloorFold::upper_branch`] is on),
+/// when there is at least one, every one is folded and they lie within
+/// [`COPLANAR_M`] of each other; `None` otherwise (the data then tell the
+/// branches apart). An estimate below `lowest` is taken to its mirror image
+/// through `mean`.
+pub fn fold_plane(arrays: impl IntoIterator<Item = (f64, bool)>) -> Option<(f64, f64)> {
+    let (mut lo, mut hi, mut sum, mut n) = (f64::INFINITY, f64::NEG_INFINITY, 0.0, 0usize);
+    for (z, folded) in arrays {
+        if !folded || !z.is_finite() {
+            return None;
+        }
+        (lo, hi, sum, n) = (lo.min(z), hi.max(z), sum + z, n + 1);
+    }
+    (n > 0 && hi - lo <= COPLANAR_M).then(|| (lo, sum / n as f64))
+}
+
 /// The measurement model of one ray from a planar array on a ground robot.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct FloorFold {
@@ -739,6 +792,10 @@ pub struct FloorFold {
     /// resolved worse than azimuth", and [`crate::ray::Ray::angular_covariance`]);
     /// `None`: the same σ on both tangent axes.
     pub vertical_spread: Option<f64>,
+    /// Whether fits and filters keep a source heard by arrays at one height
+    /// on the upper side of their plane (`doa.upper_branch`; see the module
+    /// docs, "The fold's two branches").
+    pub upper_branch: bool,
 }
 
 /// Most reflections an image of the vertical family may have been through.
@@ -924,11 +981,31 @@ impl FloorFold {
 pub(crate) fn three_mic_fold(reflection: f64, vertical_spread: Option<f64>) -> FloorFold {
     let positions = [Point3::new(0.1, 0.0, 0.0), Point3::new(-0.1, 0.0, 0.0), Point3::new(0.0, 0.1, 0.0)];
     let pattern = ArrayPattern::for_array(&positions, (100.0, 8000.0)).expect("planar");
-    FloorFold { array_height_m: 0.5, reflection, lobe: pattern.lobe(None), ceiling_m: None, vertical_spread }
+    FloorFold {
+        array_height_m: 0.5,
+        reflection,
+        lobe: pattern.lobe(None),
+        ceiling_m: None,
+        vertical_spread,
+        upper_branch: true,
+    }
 }
 
 #[cfg(test)]
 mod tests {
+    #[test]
+    fn arrays_at_one_height_share_a_fold_plane() {
+        use super::fold_plane;
+        assert_eq!(fold_plane([(0.5, true), (0.52, true)]), Some((0.5, 0.51)));
+        assert_eq!(fold_plane([(0.5, true), (0.58, true), (0.55, true)]).map(|p| p.0), Some(0.5));
+        // Heights 0.4 m apart, a straight ray among folded ones, or nothing:
+        // the data see the branches differently.
+        assert_eq!(fold_plane([(0.5, true), (0.9, true)]), None);
+        assert_eq!(fold_plane([(0.5, true), (0.5, false)]), None);
+        assert_eq!(fold_plane([(f64::NAN, true)]), None);
+        assert_eq!(fold_plane(std::iter::empty()), None);
+    }
+
     #[test]
     fn reflection_goes_from_broad_to_narrow_with_the_heard_share_of_the_band() {
         use super::{band_reflection, band_share};
@@ -1044,6 +1121,7 @@ mod tests {
             lobe,
             ceiling_m: None,
             vertical_spread: None,
+            upper_branch: true,
         };
         let origin = Point3::new(0.0, 0.0, 0.5125);
         let bias = |rho: f64| {
@@ -1086,8 +1164,14 @@ mod tests {
     #[test]
     fn the_ceiling_pulls_a_talker_up_more_than_the_floor_alone() {
         let lobe = array_pattern(&sixteen(), (100.0, 8000.0)).unwrap().lobe(Some((300.0, 3400.0)));
-        let floor =
-            FloorFold { array_height_m: 0.51, reflection: 0.6, lobe, ceiling_m: None, vertical_spread: None };
+        let floor = FloorFold {
+            array_height_m: 0.51,
+            reflection: 0.6,
+            lobe,
+            ceiling_m: None,
+            vertical_spread: None,
+            upper_branch: true,
+        };
         let room = FloorFold { ceiling_m: Some(3.0), ..floor };
         // A ceiling far away changes nothing that matters.
         let far = FloorFold { ceiling_m: Some(60.0), ..floor };
@@ -1128,6 +1212,7 @@ mod tests {
             lobe: sixteen.lobe(None),
             ceiling_m: None,
             vertical_spread: None,
+            upper_branch: true,
         };
         let talker = FloorFold { lobe: sixteen.lobe(Some((300.0, 3400.0))), ..floor };
         let folds = [

@@ -319,6 +319,7 @@ fn octagon_fold(reflection: f64) -> soundmap_server::floor_image::FloorFold {
         lobe,
         ceiling_m: None,
         vertical_spread: None,
+        upper_branch: true,
     }
 }
 

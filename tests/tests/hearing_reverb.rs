@@ -543,6 +543,7 @@ fn modelled_direction(pattern: &ArrayPattern, case: &Case) -> Vector3<f64> {
         lobe: pattern.lobe(None),
         ceiling_m: Some(case.size.z),
         vertical_spread: None,
+        upper_branch: true,
     };
     case.rotation().inverse() * fold.measured_direction(&case.array_at, &case.source).unwrap().into_inner()
 }

@@ -278,6 +278,7 @@ impl Coordinator {
         let pull = self.config.doa.reverberant_pull;
         let ceiling_m = self.config.doa.ceiling_height_m;
         let elevation_noise = self.config.doa.planar_elevation_noise;
+        let upper_branch = self.config.doa.upper_branch;
         let history_ns = self.config.alignment.history_ms as i64 * 1_000_000;
         let max_history = self.config.server.max_history_per_robot;
         let entry = match self.entry_mut(conn, "observation") {
@@ -343,6 +344,7 @@ impl Coordinator {
                     lobe: p.lobe(band),
                     ceiling_m,
                     vertical_spread: elevation_noise.then(|| p.vertical_spread()),
+                    upper_branch,
                 });
                 let ray = Ray {
                     fold,

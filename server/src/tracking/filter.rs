@@ -111,6 +111,18 @@ impl CvState {
         self.mean.iter().chain(self.covariance.iter()).all(|v| v.is_finite())
     }
 
+    /// This state mirrored through the horizontal plane z = `plane_z`: height
+    /// and vertical velocity change sign about it, and so do their
+    /// covariances with the other components (`M P M`, M = diag(1, 1, −1, 1, 1, −1)).
+    pub fn mirrored(&self, plane_z: f64) -> CvState {
+        const SIGN: [f64; 6] = [1.0, 1.0, -1.0, 1.0, 1.0, -1.0];
+        let mut mean = self.mean;
+        mean[2] = 2.0 * plane_z - mean[2];
+        mean[5] = -mean[5];
+        let covariance = Matrix6::from_fn(|i, j| SIGN[i] * SIGN[j] * self.covariance[(i, j)]);
+        CvState { mean, covariance }
+    }
+
     /// This state predicted `dt_s` seconds ahead (dt ≥ 0).
     pub fn predicted(&self, dt_s: f64, q: &ProcessNoise) -> CvState {
         if dt_s == 0.0 {
@@ -279,6 +291,24 @@ mod tests {
             origin_sigma_m: 0.0,
             fold: None,
         }
+    }
+
+    #[test]
+    fn a_mirrored_state_turns_height_and_climb_about_the_plane() {
+        let mut s = state();
+        s.covariance[(2, 0)] = 0.004;
+        s.covariance[(0, 2)] = 0.004;
+        s.covariance[(5, 3)] = 0.02;
+        s.covariance[(3, 5)] = 0.02;
+        let m = s.mirrored(0.5);
+        assert_eq!(m.position(), Point3::new(2.0, 3.0, -0.5));
+        assert_eq!(m.velocity(), Vector3::new(0.3, -0.2, -0.05));
+        assert_eq!(m.covariance[(2, 0)], -0.004);
+        assert_eq!(m.covariance[(5, 3)], -0.02);
+        assert_eq!(m.covariance[(2, 2)], s.covariance[(2, 2)]);
+        assert_eq!(m.covariance[(0, 1)], s.covariance[(0, 1)]);
+        let back = m.mirrored(0.5);
+        assert!((back.mean - s.mean).norm() < 1e-12 && back.covariance == s.covariance);
     }
 
     /// A planar array's weaker elevation ([`Ray::vertical_excess`]) enters R:

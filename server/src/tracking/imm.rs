@@ -172,6 +172,19 @@ impl ImmState {
         self.probability
     }
 
+    /// Each mode whose height is below `lowest` mirrored through z = `plane_z`
+    /// ([`CvState::mirrored`]): the fold's upper branch
+    /// ([`crate::floor_image`], "The fold's two branches").
+    pub fn on_upper_branch(&self, lowest: f64, plane_z: f64) -> ImmState {
+        let mut next = *self;
+        for m in &mut next.modes {
+            if m.mean[2] < lowest {
+                *m = m.mirrored(plane_z);
+            }
+        }
+        next
+    }
+
     /// The moment-matched mixture of the modes.
     pub fn combined(&self) -> CvState {
         let [a, b] = &self.modes;

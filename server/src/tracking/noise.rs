@@ -85,6 +85,9 @@ struct RobotNoise {
     samples: u32,
     /// Newest accepted ray origin and its stamp.
     origin: Option<(Stamp, Point3<f64>)>,
+    /// Whether that ray was folded with the upper branch kept
+    /// ([`crate::floor_image::FloorFold::upper_branch`]).
+    folded: bool,
     /// Stamp of the newest DoA seen (for replacement).
     seen: Stamp,
 }
@@ -150,7 +153,14 @@ impl Learned {
                         .min_by_key(|&k| self.robots[k].map_or(Stamp::ZERO, |r| r.seen))
                         .unwrap_or(0)
                 });
-                self.robots[k] = Some(RobotNoise { robot, mean: 1.0, samples: 0, origin: None, seen: stamp });
+                self.robots[k] = Some(RobotNoise {
+                    robot,
+                    mean: 1.0,
+                    samples: 0,
+                    origin: None,
+                    folded: false,
+                    seen: stamp,
+                });
                 k
             }
         };
@@ -184,9 +194,26 @@ impl Learned {
         }
     }
 
-    /// Records that `robot`'s DoA from `origin` was applied at `stamp`.
-    pub fn accepted(&mut self, robot: u32, stamp: Stamp, origin: Point3<f64>) {
-        self.slot(robot, stamp).origin = Some((stamp, origin));
+    /// Records that `robot`'s DoA from `origin` (`folded`: a planar array's
+    /// folded ray, its upper branch kept) was applied at `stamp`.
+    pub fn accepted(&mut self, robot: u32, stamp: Stamp, origin: Point3<f64>, folded: bool) {
+        let slot = self.slot(robot, stamp);
+        slot.origin = Some((stamp, origin));
+        slot.folded = folded;
+    }
+
+    /// The fold plane ([`crate::floor_image::fold_plane`]: lowest and mean
+    /// height) of the robots whose newest accepted DoA is at most `window_ns`
+    /// older than `at`, when they all sent folded rays from one height.
+    pub fn fold_plane(&self, at: Stamp, window_ns: i64) -> Option<(f64, f64)> {
+        let recent = self
+            .robots
+            .iter()
+            .flatten()
+            .filter_map(|r| r.origin.map(|(t, o)| (t, o, r.folded)))
+            .filter(|(t, _, _)| at - *t <= window_ns)
+            .map(|(_, o, folded)| (o.z, folded));
+        crate::floor_image::fold_plane(recent)
     }
 
     /// Whether the NIS window is full and its sum within the limit.
@@ -303,11 +330,11 @@ mod tests {
     fn theta_is_the_widest_folded_angle_of_recent_robots() {
         let mut l = Learned::default();
         let p = Point3::new(0.0, 0.0, 0.0);
-        l.accepted(1, Stamp::from_ns(0), Point3::new(1.0, 0.0, 0.0));
+        l.accepted(1, Stamp::from_ns(0), Point3::new(1.0, 0.0, 0.0), false);
         assert_eq!(l.theta_deg(&p, Stamp::from_ns(0), 10), 0.0);
-        l.accepted(2, Stamp::from_ns(5), Point3::new(0.0, 2.0, 0.0));
+        l.accepted(2, Stamp::from_ns(5), Point3::new(0.0, 2.0, 0.0), false);
         assert!((l.theta_deg(&p, Stamp::from_ns(5), 10) - 90.0).abs() < 1e-9);
-        l.accepted(3, Stamp::from_ns(20), Point3::new(-1.0, 0.1, 0.0));
+        l.accepted(3, Stamp::from_ns(20), Point3::new(-1.0, 0.1, 0.0), false);
         // Robot 3 is almost opposite robot 1 (folded ≈ 5.7°); robot 1 is too old at 20.
         let t = l.theta_deg(&p, Stamp::from_ns(20), 16);
         assert!((t - 84.3).abs() < 0.1, "{t}");

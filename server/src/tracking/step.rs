@@ -139,14 +139,21 @@ pub(super) fn step(
         next.unusable += 1;
         return (next, UpdateOutcome::Unusable(Unusable::NonFinite));
     };
-    next.filter = updated;
+    next.learned.learn(obs.robot, stamp, sample, &p.learning);
+    let upper = obs.ray.fold.is_some_and(|f| f.upper_branch);
+    next.learned.accepted(obs.robot, stamp, obs.ray.origin_in_map, upper);
+    // Robots that hear the source through folded rays from one height cannot
+    // tell it from its mirror below them: keep the upper branch
+    // (crate::floor_image, "The fold's two branches").
+    next.filter = match next.learned.fold_plane(stamp, p.rules.support_window_ns) {
+        Some((lowest, plane)) => updated.on_upper_branch(lowest, plane),
+        None => updated,
+    };
     next.filter_stamp = stamp;
-    let post = updated.combined();
+    let post = next.filter.combined();
     next.applied += 1;
     next.nis_sum += inn.nis;
     next.confirmation.record(stamp, obs.robot, post.position_rms_m(), &p.rules);
-    next.learned.learn(obs.robot, stamp, sample, &p.learning);
-    next.learned.accepted(obs.robot, stamp, obs.ray.origin_in_map);
     if next.learned.theta_deg(&post.position(), stamp, p.rules.support_window_ns) >= p.good_theta_deg {
         next.learned.good_geometry_updates = next.learned.good_geometry_updates.saturating_add(1);
     }

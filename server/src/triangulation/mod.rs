@@ -13,6 +13,10 @@
 //! against the folded, floor-image-pulled direction); with two such rays the
 //! closed-form pair point is the start of that fit.
 //!
+//! Folded rays from arrays at one height cannot tell a source above their
+//! plane from its mirror below it; a fit that ends below is taken to the
+//! upper branch ([`crate::floor_image`], "The fold's two branches").
+//!
 //! Folded rays also say where the room is: each array's floor lies
 //! `array_height_m` below it, and its ceiling `ceiling_m` above that floor
 //! when `[doa] ceiling_height_m` is configured ([`room_of`]). A point below
@@ -315,6 +319,7 @@ pub fn triangulate(rays: &[Ray], config: &TriangulationConfig) -> Triangulation 
             // Folded rays do not point at the source: the closed form is only the
             // start, refined on the floor-image model (crate::floor_image).
             let fit = lm::refine(rays, point, RobustLoss::None, config.lm_max_iterations);
+            let fit = upper_branch(rays, fit, RobustLoss::None, config.lm_max_iterations);
             (Method::RayPair, fit.point, Some(cp.miss_m), fit.chi2)
         } else {
             (Method::RayPair, point, Some(cp.miss_m), chi2)
@@ -335,6 +340,7 @@ pub fn triangulate(rays: &[Ray], config: &TriangulationConfig) -> Triangulation 
         }
         if config.lm_max_iterations > 0 {
             let fit = lm::refine(rays, ls, config.robust_loss, config.lm_max_iterations);
+            let fit = upper_branch(rays, fit, config.robust_loss, config.lm_max_iterations);
             (Method::LevenbergMarquardt, fit.point, None, fit.chi2)
         } else {
             let chi2 = lm::refine(rays, ls, RobustLoss::None, 0).chi2;
@@ -362,6 +368,31 @@ pub fn triangulate(rays: &[Ray], config: &TriangulationConfig) -> Triangulation 
         residual_dof: dof,
         gate,
     })
+}
+
+/// The fit on the fold's upper branch ([`crate::floor_image`], "The fold's
+/// two branches"): when every ray is folded from arrays at one height and
+/// `fit` lies below the lowest of them, the fit again from its mirror image
+/// through their mean height; if that one slides back below, the best the
+/// upper side holds is on its edge, and the point is taken there (its
+/// height set to the lowest array's, with the χ² it has there). Any other
+/// fit is returned as it is.
+fn upper_branch(rays: &[Ray], fit: lm::LmFit, loss: RobustLoss, iterations: usize) -> lm::LmFit {
+    let arrays = rays.iter().map(|r| (r.origin_in_map.z, r.fold.is_some_and(|f| f.upper_branch)));
+    let Some((lowest, plane)) = crate::floor_image::fold_plane(arrays) else { return fit };
+    if fit.point.z >= lowest {
+        return fit;
+    }
+    let mirror = Point3::new(fit.point.x, fit.point.y, 2.0 * plane - fit.point.z);
+    let refit = lm::refine(rays, mirror, loss, iterations);
+    if !refit.chi2.is_finite() {
+        return fit; // the mirror image lies behind an array
+    }
+    if refit.point.z >= lowest {
+        return refit;
+    }
+    let edge = lm::refine(rays, Point3::new(refit.point.x, refit.point.y, lowest), loss, 0);
+    if edge.chi2.is_finite() { edge } else { fit }
 }
 
 /// [`GateReason::OutsideRoom`] when `p` lies below the rays' floor or above
@@ -433,6 +464,43 @@ mod tests {
             origin_sigma_m: 0.0,
             fold: fold.then(|| crate::floor_image::FloorFold { ceiling_m, ..three_mic_fold(0.6, None) }),
         }
+    }
+
+    /// A folded ray from an array 0.5 m up at (x, y) holding what it measures
+    /// (folded, floor-pulled) for `source`.
+    fn measured(x: f64, y: f64, source: &Point3<f64>) -> Ray {
+        let fold = three_mic_fold(0.6, None);
+        let origin = Point3::new(x, y, 0.5);
+        let direction = fold.measured_direction(&origin, source).unwrap();
+        Ray {
+            origin_in_map: origin,
+            direction_in_map: direction,
+            sigma_rad: 0.01,
+            origin_sigma_m: 0.0,
+            fold: Some(fold),
+        }
+    }
+
+    #[test]
+    fn a_source_below_arrays_at_one_height_is_placed_above_them() {
+        let below = Point3::new(0.3, 0.2, 0.2);
+        for rays in [
+            vec![measured(3.0, 0.0, &below), measured(0.0, 3.0, &below)],
+            vec![measured(3.0, 0.0, &below), measured(0.0, 3.0, &below), measured(-2.5, 1.0, &below)],
+        ] {
+            let s = triangulate(&rays, &TriangulationConfig::default()).solution().cloned().unwrap();
+            let p = s.source_in_map;
+            // On the upper side: at most at the mirror image through the
+            // arrays' plane (0.8 m); the floor term, exact in these rays, holds
+            // no minimum above the plane, so the fit ends on it.
+            assert!((0.5..0.85).contains(&p.z), "{} rays: {p}", rays.len());
+            assert!((p.xy() - below.xy()).norm() < 0.1, "{p}");
+        }
+        // A source above them stays where it is.
+        let above = Point3::new(0.3, 0.2, 0.8);
+        let rays = [measured(3.0, 0.0, &above), measured(0.0, 3.0, &above)];
+        let p = triangulate(&rays, &TriangulationConfig::default()).solution().unwrap().source_in_map;
+        assert!((p - above).norm() < 0.02, "{p}");
     }
 
     #[test]

@@ -1,7 +1,7 @@
 //! Scenarios shipped with soundmap (`tests/scenarios/*.toml`).
 
 /// Names of the built-in scenarios.
-pub const NAMES: [&str; 16] = [
+pub const NAMES: [&str; 17] = [
     "smoke",
     "paper-static",
     "paper-moving",
@@ -18,6 +18,7 @@ pub const NAMES: [&str; 16] = [
     "fast-walker",
     "deaf-near-wall",
     "mixed-fleet",
+    "low-source",
 ];
 
 /// The TOML text of a built-in scenario.
@@ -39,6 +40,7 @@ pub fn text(name: &str) -> Option<&'static str> {
         "fast-walker" => include_str!("../../scenarios/fast-walker.toml"),
         "deaf-near-wall" => include_str!("../../scenarios/deaf-near-wall.toml"),
         "mixed-fleet" => include_str!("../../scenarios/mixed-fleet.toml"),
+        "low-source" => include_str!("../../scenarios/low-source.toml"),
         _ => return None,
     })
 }
