@@ -196,29 +196,30 @@
 //! # The fold's two branches
 //!
 //! Arrays at one height fold a source above their plane and its mirror image
-//! below it onto the same DoAs; only the floor term tells them apart, and it
-//! is the part of the model the rooms measured least well (the pull the
-//! simulated rooms show is larger than the model's, and the mirror branch,
-//! nearer its own floor image, models more of it). So the data choose the
-//! branch by the model's error, not by where the source is. Left to the
-//! fits, a white-noise source 0.19 m above two arrays 2.5 m away (RT60
-//! 0.5 s) was placed at its mirror in 83–100 % of the estimates (height
+//! below it onto the same DoAs; only the floor term tells them apart, and
+//! near the arrays' plane it does not tell them apart reliably in the
+//! simulated rooms: a white-noise source 0.19 m above two arrays 2.5 m away
+//! (RT60 0.5 s) and one 0.16 m below them (its mirror image) were both
+//! placed 0.35–0.5 m up, on the lower side. Left to the fits, the source
+//! above was placed at its mirror in 83–100 % of the estimates (height
 //! 0.2–0.3 m low, trusted NEES 7–9), and a walking one 0.35 m above them
-//! had its filter cross into the mirror and stay there for 30 s (0.5–0.9 m
-//! low, NEES 100–230) while the ray pairs went back above (BENCHMARKS.md,
-//! "The fold's upper branch").
+//! had its filter cross into the mirror and stay there to the end of the
+//! run, 33 s (0.5–0.9 m low, NEES 100–230), while the ray pairs went back
+//! above (BENCHMARKS.md, "The fold's upper branch").
 //!
 //! Soundmap therefore takes the **upper branch** (`doa.upper_branch`, on by
 //! default) whenever every ray of a fit
 //! (or every robot a filter heard within its support window) is folded and
 //! their arrays lie within [`COPLANAR_M`] of one height ([`fold_plane`]): a
 //! triangulation that converges below the lowest of those arrays is fitted
-//! again from its mirror image above their mean height, and a filter that an
+//! again from its mirror image above their mean height (and placed on the
+//! arrays' plane when that fit slides back below), and a filter mode that an
 //! update takes below it is mirrored above it (position and vertical
 //! velocity, covariance alike; the data cannot object, since they are
 //! symmetric up to the floor term). The cost is stated: a source truly below
-//! the arrays (on the floor, under a table) is placed at its mirror image
-//! above them. Most sources a ground robot localizes (voices, devices on
+//! the arrays (on the floor, under a table) is placed above them, in the
+//! simulated rooms on their plane (0.16–0.31 m too high for sources 0.35
+//! and 0.2 m up). Most sources a ground robot localizes (voices, devices on
 //! tables and shelves, alarms) are above an array 0.3–0.6 m high. Arrays at
 //! clearly different heights, or straight rays from a process that does not
 //! fold (an ODAS bridge), see the two branches differently and are left to
