@@ -943,9 +943,9 @@ mod tests {
     /// Two planar arrays 0.5 m above the floor hear a source at 1.2 m; each
     /// measures it folded onto the upper hemisphere. The closure runs round
     /// k: both robots' DoAs at k × 50 ms, and a step of the map.
-    fn folded_pair() -> (SoundMap, impl FnMut(&mut SoundMap, i64) -> Stamp, Point3<f64>) {
+    fn folded_pair(upper_branch: bool) -> (SoundMap, impl FnMut(&mut SoundMap, i64) -> Stamp, Point3<f64>) {
         let source = Point3::new(0.0, 0.0, 1.2);
-        let fold = three_mic_fold(0.0, None);
+        let fold = crate::floor_image::FloorFold { upper_branch, ..three_mic_fold(0.0, None) };
         let origins = [Point3::new(-3.0, 0.0, 0.5), Point3::new(0.0, -3.0, 0.5)];
         let config = SourcesConfig { max_sources: 4, ..SourcesConfig::default() };
         let map = SoundMap::new(config, TrackerConfig::default());
@@ -995,7 +995,7 @@ mod tests {
     /// a restart.
     #[test]
     fn a_filter_at_the_mirror_image_returns_to_the_upper_branch() {
-        let (mut map, mut round, source) = folded_pair();
+        let (mut map, mut round, source) = folded_pair(true);
         for k in 0..40 {
             round(&mut map, k);
         }
@@ -1009,6 +1009,37 @@ mod tests {
         let (after, p) = only_position(&map);
         assert!((p - source).norm() < 0.15, "back on the upper branch: {p}");
         assert_eq!((after, map.restarts), (id, 0));
+    }
+
+    /// With the upper branch left to the data (`doa.upper_branch = false`),
+    /// a filter put at the mirror image stays there on the DoAs alone; its
+    /// own rays' triangulation, taken from the rays' intersection above the
+    /// arrays, disagrees, and after a second the source is restarted from it,
+    /// keeping its id.
+    #[test]
+    fn a_filter_stuck_at_the_mirror_image_is_restarted_from_its_rays() {
+        let (mut map, mut round, source) = folded_pair(false);
+        for k in 0..40 {
+            round(&mut map, k);
+        }
+        let (id, p) = only_position(&map);
+        assert!((p - source).norm() < 0.15, "born at {p}");
+        let mirror = Point3::new(0.0, 0.0, -0.2);
+        let stamp = round(&mut map, 40);
+        map.sources[0].tracker.initialize(stamp, mirror, Matrix3::identity() * 0.01);
+        for k in 41..51 {
+            round(&mut map, k);
+        }
+        let (_, p) = only_position(&map);
+        assert!((p - mirror).norm() < 0.15, "the DoAs alone keep it at the mirror: {p}");
+        assert_eq!(map.restarts, 0);
+        for k in 51..80 {
+            round(&mut map, k);
+        }
+        let (after, p) = only_position(&map);
+        assert_eq!(map.restarts, 1);
+        assert_eq!(after, id, "the restarted source keeps its id");
+        assert!((p - source).norm() < 0.15, "restarted at {p}");
     }
 }
 
