@@ -940,11 +940,15 @@ mod tests {
     use crate::tracking::TrackerConfig;
     use crate::triangulation::TriangulationConfig;
 
-    /// Two planar arrays 0.5 m above the floor hear a source at 1.2 m; each
+    /// The source the arrays of [`folded_pair`] hear.
+    const SOURCE: Point3<f64> = Point3::new(0.0, 0.0, 1.2);
+    /// Its mirror image in their plane.
+    const MIRROR: Point3<f64> = Point3::new(0.0, 0.0, -0.2);
+
+    /// Two planar arrays 0.5 m above the floor hear [`SOURCE`]; each
     /// measures it folded onto the upper hemisphere. The closure runs round
     /// k: both robots' DoAs at k × 50 ms, and a step of the map.
-    fn folded_pair(upper_branch: bool) -> (SoundMap, impl FnMut(&mut SoundMap, i64) -> Stamp, Point3<f64>) {
-        let source = Point3::new(0.0, 0.0, 1.2);
+    fn folded_pair(upper_branch: bool) -> (SoundMap, impl FnMut(&mut SoundMap, i64) -> Stamp) {
         let fold = crate::floor_image::FloorFold { upper_branch, ..three_mic_fold(0.0, None) };
         let origins = [Point3::new(-3.0, 0.0, 0.5), Point3::new(0.0, -3.0, 0.5)];
         let config = SourcesConfig { max_sources: 4, ..SourcesConfig::default() };
@@ -953,7 +957,7 @@ mod tests {
         let t0 = Stamp::from_ns(1_767_225_600_000_000_000);
         let ray = move |o: Point3<f64>| Ray {
             origin_in_map: o,
-            direction_in_map: fold.measured_direction(&o, &source).expect("not straight above"),
+            direction_in_map: fold.measured_direction(&o, &SOURCE).expect("not straight above"),
             sigma_rad: 1f64.to_radians(),
             origin_sigma_m: 0.0,
             fold: Some(fold),
@@ -979,13 +983,31 @@ mod tests {
             map.step(stamp.plus_ns(20_000_000), &aligned, &tri);
             stamp
         };
-        (map, round, source)
+        (map, round)
     }
 
     fn only_position(map: &SoundMap) -> (u64, Point3<f64>) {
         let all: Vec<_> = map.sources().collect();
         assert_eq!(all.len(), 1, "one source");
         (all[0].0, all[0].3.expect("an estimate").position_in_map)
+    }
+
+    /// [`folded_pair`] run for 2 s (the source born where it is), its filter
+    /// then put at the source's mirror image and ten more rounds run: the map,
+    /// the rounds and the source's id.
+    fn put_at_the_mirror(upper_branch: bool) -> (SoundMap, impl FnMut(&mut SoundMap, i64) -> Stamp, u64) {
+        let (mut map, mut round) = folded_pair(upper_branch);
+        for k in 0..40 {
+            round(&mut map, k);
+        }
+        let (id, p) = only_position(&map);
+        assert!((p - SOURCE).norm() < 0.15, "born at {p}");
+        let stamp = round(&mut map, 40);
+        map.sources[0].tracker.initialize(stamp, MIRROR, Matrix3::identity() * 0.01);
+        for k in 41..51 {
+            round(&mut map, k);
+        }
+        (map, round, id)
     }
 
     /// The source's mirror image in the arrays' plane, at −0.2 m, explains
@@ -995,19 +1017,9 @@ mod tests {
     /// a restart.
     #[test]
     fn a_filter_at_the_mirror_image_returns_to_the_upper_branch() {
-        let (mut map, mut round, source) = folded_pair(true);
-        for k in 0..40 {
-            round(&mut map, k);
-        }
-        let (id, p) = only_position(&map);
-        assert!((p - source).norm() < 0.15, "born at {p}");
-        let stamp = round(&mut map, 40);
-        map.sources[0].tracker.initialize(stamp, Point3::new(0.0, 0.0, -0.2), Matrix3::identity() * 0.01);
-        for k in 41..51 {
-            round(&mut map, k);
-        }
+        let (map, _, id) = put_at_the_mirror(true);
         let (after, p) = only_position(&map);
-        assert!((p - source).norm() < 0.15, "back on the upper branch: {p}");
+        assert!((p - SOURCE).norm() < 0.15, "back on the upper branch: {p}");
         assert_eq!((after, map.restarts), (id, 0));
     }
 
@@ -1018,20 +1030,9 @@ mod tests {
     /// keeping its id.
     #[test]
     fn a_filter_stuck_at_the_mirror_image_is_restarted_from_its_rays() {
-        let (mut map, mut round, source) = folded_pair(false);
-        for k in 0..40 {
-            round(&mut map, k);
-        }
-        let (id, p) = only_position(&map);
-        assert!((p - source).norm() < 0.15, "born at {p}");
-        let mirror = Point3::new(0.0, 0.0, -0.2);
-        let stamp = round(&mut map, 40);
-        map.sources[0].tracker.initialize(stamp, mirror, Matrix3::identity() * 0.01);
-        for k in 41..51 {
-            round(&mut map, k);
-        }
+        let (mut map, mut round, id) = put_at_the_mirror(false);
         let (_, p) = only_position(&map);
-        assert!((p - mirror).norm() < 0.15, "the DoAs alone keep it at the mirror: {p}");
+        assert!((p - MIRROR).norm() < 0.15, "the DoAs alone keep it at the mirror: {p}");
         assert_eq!(map.restarts, 0);
         for k in 51..80 {
             round(&mut map, k);
@@ -1039,7 +1040,7 @@ mod tests {
         let (after, p) = only_position(&map);
         assert_eq!(map.restarts, 1);
         assert_eq!(after, id, "the restarted source keeps its id");
-        assert!((p - source).norm() < 0.15, "restarted at {p}");
+        assert!((p - SOURCE).norm() < 0.15, "restarted at {p}");
     }
 }
 

@@ -206,14 +206,18 @@ impl Learned {
     /// height) of the robots whose newest accepted DoA is at most `window_ns`
     /// older than `at`, when they all sent folded rays from one height.
     pub fn fold_plane(&self, at: Stamp, window_ns: i64) -> Option<(f64, f64)> {
-        let recent = self
-            .robots
+        crate::floor_image::fold_plane(self.recent(at, window_ns).map(|(o, folded)| (o.z, folded)))
+    }
+
+    /// The newest accepted ray origin of each robot (and whether that ray was
+    /// folded with the upper branch kept) at most `window_ns` older than `at`.
+    fn recent(&self, at: Stamp, window_ns: i64) -> impl Iterator<Item = (Point3<f64>, bool)> + '_ {
+        self.robots
             .iter()
             .flatten()
             .filter_map(|r| r.origin.map(|(t, o)| (t, o, r.folded)))
-            .filter(|(t, _, _)| at - *t <= window_ns)
-            .map(|(_, o, folded)| (o.z, folded));
-        crate::floor_image::fold_plane(recent)
+            .filter(move |(t, _, _)| at - *t <= window_ns)
+            .map(|(_, o, folded)| (o, folded))
     }
 
     /// Whether the NIS window is full and its sum within the limit.
@@ -230,14 +234,8 @@ impl Learned {
     /// θ (degrees, folded to [0, 90]) at `p` between the robots whose newest
     /// accepted DoA is within `window_ns` of `at`; 0 with fewer than two.
     pub fn theta_deg(&self, p: &Point3<f64>, at: Stamp, window_ns: i64) -> f64 {
-        let dirs: Vec<_> = self
-            .robots
-            .iter()
-            .flatten()
-            .filter_map(|r| r.origin)
-            .filter(|(t, _)| at - *t <= window_ns)
-            .filter_map(|(_, o)| (p - o).try_normalize(1e-9))
-            .collect();
+        let dirs: Vec<_> =
+            self.recent(at, window_ns).filter_map(|(o, _)| (p - o).try_normalize(1e-9)).collect();
         let mut best: f64 = 0.0;
         for i in 0..dirs.len() {
             for j in i + 1..dirs.len() {

@@ -144,8 +144,9 @@ pub(super) fn step(
     next.learned.accepted(obs.robot, stamp, obs.ray.origin_in_map, upper);
     // Robots that hear the source through folded rays from one height cannot
     // tell it from its mirror below them: keep the upper branch
-    // (crate::floor_image, "The fold's two branches").
-    next.filter = match next.learned.fold_plane(stamp, p.rules.support_window_ns) {
+    // (crate::floor_image, "The fold's two branches"). A straight ray, or one
+    // with the rule off, leaves no fold plane: nothing to look up.
+    next.filter = match upper.then(|| next.learned.fold_plane(stamp, p.rules.support_window_ns)).flatten() {
         Some((lowest, plane)) => updated.on_upper_branch(lowest, plane),
         None => updated,
     };
