@@ -124,10 +124,12 @@ pub struct PlannerConfig {
     pub follow_distance_m: f64,
     /// The source is predicted this far ahead with its velocity (s): the
     /// pattern is built around that point and the keep-out runs along the
-    /// path to it. Default 1.0. Over the 20-seed sweeps (BENCHMARKS.md, "The
-    /// planning lead") 2.0 left the band in fewer runs (16 → 10 of 120 below
-    /// 95 %; the 1.0 m/s walker 4 → 1) but issued more goals within 1 m of
-    /// the true source (2 → 12), and 1.5 was no better than 1.0.
+    /// path to it. Default 1.0. Over the sweeps (BENCHMARKS.md, "The
+    /// planning lead again") 2.0 keeps walkers that walk straight between
+    /// turns in band more often (28 → 10 of 140 runs below 95 %) but loses
+    /// a walker circling within the robots' range (17 → 34 of 60) and
+    /// places the source less accurately; shortening it while the walker
+    /// turns was tried and did not help overall.
     pub source_lead_s: f64,
     /// No planning around a source whose √tr P exceeds this (m). Default 3.0,
     /// which still lets the planner fix the paper's θ ≈ 10° geometry at 3 m (≈ 1.4 m).
