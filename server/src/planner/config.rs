@@ -126,7 +126,8 @@ pub struct PlannerConfig {
     /// pattern is built around that point and the keep-out runs along the
     /// path to it. Default 1.0. Over the sweeps (BENCHMARKS.md, "The
     /// planning lead again") 2.0 keeps walkers that walk straight between
-    /// turns in band more often (28 → 10 of 140 runs below 95 %) but loses
+    /// turns in band more often (28 → 10 of 140 runs below 95 %; on a second
+    /// seed set 26 → 18 of 100, `corner-start`'s talker no better) but loses
     /// a walker circling within the robots' range (17 → 34 of 60) and
     /// places the source less accurately; shortening it while the walker
     /// turns was tried and did not help overall.
