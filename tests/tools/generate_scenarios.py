@@ -21,7 +21,12 @@ import os
 import random
 import sys
 
-HEADER = ['[noise]', 'sensor_snr_db = 30.0']
+
+def preamble(name, description, duration_s, w, h, rt):
+    """The scenario's name, its length and its shoebox room, then the noise table's first line."""
+    return [f'name = "{name}"', f'description = "{description}"', f'duration_s = {duration_s}', 'seed = 1', '',
+            '[room]', 'min_corner_m = [0.0, 0.0, 0.0]', f'size_m = [{w:.2f}, {h:.2f}, 3.0]', f'rt60_s = {rt}', '',
+            '[noise]', 'sensor_snr_db = 30.0']
 
 
 def walkers(k):
@@ -33,9 +38,7 @@ def walkers(k):
     talker = r.random() < 0.5
     speed = r.uniform(0.2, 1.0)
     rspeed = r.choice([0.5, 0.8, 0.8])
-    s = [f'name = "gen{k}"', f'description = "generated walker {k}"', 'duration_s = 40.0', 'seed = 1', '',
-         '[room]', 'min_corner_m = [0.0, 0.0, 0.0]', f'size_m = [{w:.2f}, {h:.2f}, 3.0]', f'rt60_s = {rt}', '',
-         *HEADER, 'reference_distance_m = 3.0', '',
+    s = [*preamble(f'gen{k}', f'generated walker {k}', 40.0, w, h, rt), 'reference_distance_m = 3.0', '',
          '[active_positioning]', 'enabled = true', 'theta_min_deg = 40.0', 'theta_max_deg = 140.0', '',
          '[coordinator.planner]', f'robot_speed_mps = {rspeed}', '',
          '[coordinator.server]', 'max_observation_rate_hz = 100000.0', '']
@@ -74,9 +77,8 @@ def several(k):
     w, h = r.uniform(7, 12), r.uniform(6, 10)
     rt = round(r.uniform(0.3, 0.7), 2)
     nsrc = r.choice([2, 2, 3])
-    s = [f'name = "mgen{k}"', f'description = "generated several sources {k}"', 'duration_s = 30.0', 'seed = 1', '',
-         '[room]', 'min_corner_m = [0.0, 0.0, 0.0]', f'size_m = [{w:.2f}, {h:.2f}, 3.0]', f'rt60_s = {rt}', '',
-         *HEADER, 'reference_distance_m = 2.0', '', '[coordinator.sources]', 'max_sources = 4', '']
+    s = [*preamble(f'mgen{k}', f'generated several sources {k}', 30.0, w, h, rt), 'reference_distance_m = 2.0', '',
+         '[coordinator.sources]', 'max_sources = 4', '']
     arrays = ['16soundsusb-pioneer', '16soundsusb-turtlebot', 'respeaker-6']
     for i in range(3):
         x, y = r.uniform(0.8, w - 0.8), r.uniform(0.8, h - 0.8)
