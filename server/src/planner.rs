@@ -207,7 +207,7 @@ impl Planner {
             })
             .collect();
         let settings = PatternSettings {
-            range_m: cfg.preferred_range_m,
+            range_m: cfg.range_for_speed_m(speed),
             rotation_step_deg: cfg.pattern_rotation_step_deg,
             switch_weight: cfg.pattern_switch_weight,
             blocked_penalty_m: 0.0,

@@ -59,19 +59,23 @@ pub struct PlannerConfig {
     /// estimate's path where the cycle's constraints allow. With 0, both keep
     /// only the 2σ part. Default 0.3 (m).
     pub keep_out_margin_m: f64,
-    /// Range of the ideal spots (m), in [r_min, r_max]. Default 2.5.
-    ///
-    /// Information grows as 1/r², but a walker sweeps a robot's bearing at
-    /// v/r (20°/s at 0.7 m/s and 2 m), and θ with it: the closer the
-    /// formation, the sooner a walker takes θ out of the band before the
-    /// robots, which turn and accelerate before they drive, can follow.
-    /// Measured on the start scenarios' sweeps (BENCHMARKS.md, "The
-    /// formation's range"): 2.5 m instead of 2 m took the runs below 95 % in
-    /// band from 45 to 13 of 200 (second seeds 26 → 18), at a cost in RSE of
-    /// about the ratio of the ranges where the DoAs set it (`corner-start-3`
-    /// RSE p95 median 0.179 → 0.221 m); 3 m was no better in band and cost
-    /// more. A deployment that tracks still sources only can set 2.
+    /// Range of the ideal spots for a still source (m), in [r_min, r_max];
+    /// information grows as 1/r². Default 2.0.
     pub preferred_range_m: f64,
+    /// Added to `preferred_range_m` per m/s of the source's tracked horizontal
+    /// speed (s), the sum capped at r_max. Default 0.7: 2.5 m for a walker at
+    /// 0.7 m/s, 2.7 m at 1 m/s.
+    ///
+    /// A walker sweeps a robot's bearing at v/r (20°/s at 0.7 m/s and 2 m),
+    /// and θ with it, faster than robots that turn and accelerate before
+    /// they drive can follow; further out it sweeps it more slowly, at a cost
+    /// in accuracy about in the ratio of the ranges. Measured on the start
+    /// and walker scenarios (BENCHMARKS.md, "The formation's range"): runs
+    /// below 95 % in band 45 → 27 of 200 (a fixed 2.5 m: 13, but it cost the
+    /// still talkers of `cocktail-active` OSPA 0.250 → 0.286 m and twice the
+    /// ghosts, where this keeps 0.254 m). 0 plans every source at
+    /// `preferred_range_m`.
+    pub range_per_speed_s: f64,
     /// Smallest distance between two robots' goals (m). Default 0.8.
     pub min_separation_m: f64,
     /// Largest move per planning cycle (m); the cycle's step is
@@ -173,7 +177,8 @@ impl Default for PlannerConfig {
             min_range_m: 1.0,
             max_range_m: 5.0,
             keep_out_margin_m: 0.3,
-            preferred_range_m: 2.5,
+            preferred_range_m: 2.0,
+            range_per_speed_s: 0.7,
             min_separation_m: 0.8,
             max_step_m: 1.0,
             robot_speed_m_per_s: 0.5,
@@ -232,6 +237,14 @@ impl PlannerConfig {
     /// [`Self::step_m`]).
     pub fn step_of(&self, base: &BaseLimits, period_s: f64) -> f64 {
         self.max_step_m.min(1.5 * self.speed_of(base) * period_s)
+    }
+
+    /// The range of the ideal spots for a source moving at `speed_m_per_s`
+    /// horizontally (m): `preferred_range_m` plus `range_per_speed_s` per m/s,
+    /// at most r_max.
+    pub fn range_for_speed_m(&self, speed_m_per_s: f64) -> f64 {
+        let extra = self.range_per_speed_s * speed_m_per_s.max(0.0);
+        (self.preferred_range_m + if extra.is_finite() { extra } else { 0.0 }).min(self.max_range_m)
     }
 
     /// A robot's speed (m/s): what its hello declared, else `robot_speed_m_per_s`.
@@ -306,6 +319,7 @@ impl PlannerConfig {
         let non_negative = [
             ("min_separation_m", self.min_separation_m),
             ("keep_out_margin_m", self.keep_out_margin_m),
+            ("range_per_speed_s", self.range_per_speed_s),
             ("follow_retask_travel_m", self.follow_retask_travel_m),
             ("follow_retask_max_sigma_m", self.follow_retask_max_sigma_m),
             ("robot_radius_m", self.robot_radius_m),
@@ -424,6 +438,23 @@ mod tests {
         assert_eq!(off.retask_period_s(3.0, 0.05), 1.0);
         assert_eq!(c.retask_period_s(f64::NAN, 0.05), 1.0);
         assert_eq!(c.retask_period_s(1.0, f64::NAN), 1.0);
+    }
+
+    #[test]
+    fn the_ideal_range_grows_with_the_sources_speed() {
+        let c = PlannerConfig::default();
+        assert_eq!(c.range_for_speed_m(0.0), 2.0);
+        assert!((c.range_for_speed_m(1.0) - 2.7).abs() < 1e-12);
+        // At most r_max (5 m); a speed that is not a number adds nothing.
+        assert_eq!(c.range_for_speed_m(10.0), 5.0);
+        assert_eq!(c.range_for_speed_m(f64::NAN), 2.0);
+        assert_eq!(c.range_for_speed_m(-1.0), 2.0);
+        let fixed = PlannerConfig { range_per_speed_s: 0.0, ..Default::default() };
+        assert_eq!(fixed.range_for_speed_m(1.0), 2.0);
+        for bad in [-0.1, f64::NAN, f64::INFINITY] {
+            let c = PlannerConfig { range_per_speed_s: bad, ..Default::default() };
+            assert_eq!(c.validate().unwrap_err().field, "range_per_speed_s");
+        }
     }
 
     #[test]
