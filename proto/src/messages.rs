@@ -43,6 +43,9 @@ pub struct ArrayInfo {
     /// Band of the steered-response search behind the DoAs, Hz (`[low, high]`),
     /// when the robot declares it.
     pub srp_band_hz: Option<[f64; 2]>,
+    /// Whether the DoAs' elevations are the direct path's (the robot fitted
+    /// the floor's reflection), so the coordinator models no pull.
+    pub direct_path_elevations: bool,
 }
 
 /// First message of a robot's stream.
@@ -339,6 +342,7 @@ impl ArrayInfo {
         };
         Ok(ArrayInfo {
             srp_band_hz,
+            direct_path_elevations: a.direct_path_elevations,
             base_from_array,
             microphone_count: a.microphone_count,
             preset: (!a.preset.is_empty())
@@ -360,6 +364,7 @@ impl ArrayInfo {
                 .map(|p| vec3_to_wire(&p.coords))
                 .collect(),
             srp_band_hz: self.srp_band_hz.map(Vec::from).unwrap_or_default(),
+            direct_path_elevations: self.direct_path_elevations,
         }
     }
 }
@@ -783,6 +788,7 @@ mod tests {
                 preset: Some("16soundsusb-pioneer".into()),
                 microphone_positions: vec![],
                 srp_band_hz: None,
+                direct_path_elevations: false,
             },
             software_version: "test".into(),
             signature_bands: Some(vec![100.0, 1000.0, 7200.0]),
@@ -857,6 +863,7 @@ mod tests {
                 preset: None,
                 microphone_positions: vec![],
                 srp_band_hz: None,
+                direct_path_elevations: false,
             },
             software_version: String::new(),
             signature_bands: Some(vec![100.0, 1000.0, 3000.0, 7200.0]),

@@ -230,6 +230,7 @@ mod tests {
             preset: None,
             microphone_positions: vec![],
             srp_band_hz: None,
+            direct_path_elevations: false,
         };
         let command = RepositionCommand {
             command_id: 7,

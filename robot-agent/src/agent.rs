@@ -240,6 +240,7 @@ pub fn hello(robot_id: RobotId, array: &ArrayGeometry, software_version: String)
             preset: presets::NAMES.contains(&array.name.as_str()).then(|| array.name.clone()),
             microphone_positions: array.positions().collect(),
             srp_band_hz: None,
+            direct_path_elevations: false,
         },
         software_version,
         signature_bands: None,

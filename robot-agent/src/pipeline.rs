@@ -108,7 +108,9 @@ impl PipelineConfig {
     /// [`PipelineConfig::max_reported_tracks`] tracks per observation,
     /// signatures in the bands of [`SignatureConfig::band_edges_hz`] (none when
     /// signatures are off), and the SRP's band (`ArrayInfo::srp_band_hz`, which
-    /// lets the coordinator model the floor image for a planar array). Errors name a bad signature setting.
+    /// lets the coordinator model the floor image for a planar array), and
+    /// with `srp.floor_fit` that the elevations are the direct path's
+    /// (`ArrayInfo::direct_path_elevations`). Errors name a bad signature setting.
     pub fn declare_tracks(
         &self,
         mut hello: soundmap_proto::Hello,
@@ -117,6 +119,7 @@ impl PipelineConfig {
         hello.max_tracks = Some(self.max_reported_tracks as u32);
         hello.signature_bands = (!edges.is_empty()).then_some(edges);
         hello.array.srp_band_hz = Some(self.srp_band_hz());
+        hello.array.direct_path_elevations = self.srp.floor_fit;
         Ok(hello)
     }
 

@@ -28,6 +28,7 @@
 //! Frames: directions are unit vectors in the `array` frame.
 
 pub mod diffuse;
+pub mod floor_fit;
 pub mod grid;
 pub mod phat;
 pub mod refine;
@@ -121,6 +122,25 @@ pub struct SrpConfig {
     pub min_separation_deg: f64,
     /// Directions searched; `None` uses the array's default region.
     pub region: Option<RegionConfig>,
+    /// Refine each coherent peak's elevation and range with the floor's
+    /// reflection in the steering model ([`floor_fit`]): the DoAs are then
+    /// the direct path's, not pulled up by the floor's image.
+    pub floor_fit: bool,
+    /// Pressure reflection coefficient of the floor (and ceiling) the fit
+    /// assumes, in `0..=1`.
+    pub floor_reflection: f64,
+    /// Height of the array origin above the floor, m; `None` takes it from
+    /// the array's mount (`base_from_array`, the base frame's origin on the
+    /// floor).
+    pub floor_height_m: Option<f64>,
+    /// Height of the ceiling above the floor, m, if known (its image joins
+    /// the model).
+    pub ceiling_height_m: Option<f64>,
+    /// Peaks whose grid coherence is below this keep their plane-wave fit.
+    pub floor_fit_min_coherence: f64,
+    /// Smallest relative gain of steered power over the direct path alone
+    /// for a fit to be kept.
+    pub floor_fit_min_gain: f64,
 }
 
 impl Default for SrpConfig {
@@ -143,6 +163,12 @@ impl Default for SrpConfig {
             max_sources: 2,
             min_separation_deg: 15.0,
             region: None,
+            floor_fit: false,
+            floor_reflection: 0.8,
+            floor_height_m: None,
+            ceiling_height_m: None,
+            floor_fit_min_coherence: 0.08,
+            floor_fit_min_gain: 0.0,
         }
     }
 }
@@ -180,6 +206,8 @@ pub struct SrpStats {
     pub fine_points: usize,
     /// Beamformer evaluations (value, gradient, Hessian) of the refinement.
     pub refine_evaluations: usize,
+    /// Model evaluations of the floor-reflection fit.
+    pub floor_fit_evaluations: usize,
 }
 
 /// SRP-PHAT localizer of one array.
@@ -203,6 +231,8 @@ pub struct Srp {
     projected: usize,
     max_step_rad: f64,
     diffuse: diffuse::DiffuseMap,
+    /// The floor-reflection fit, when on.
+    floor: Option<floor_fit::FloorFit>,
 }
 
 impl Srp {
@@ -293,6 +323,47 @@ impl Srp {
             refiner = refiner.with_diffuse_power();
         }
         let (normal, _) = array.best_fit_plane();
+        let floor = if config.floor_fit {
+            let beta = config.floor_reflection;
+            if !(beta.is_finite() && (0.0..=1.0).contains(&beta)) {
+                return Err(bad("floor_reflection", format!("must be in 0..=1, got {beta}")));
+            }
+            let mount = array.base_from_array;
+            let height = config.floor_height_m.unwrap_or(mount.translation.vector.z);
+            if !(height.is_finite() && (0.05..=10.0).contains(&height)) {
+                return Err(bad(
+                    "floor_height_m",
+                    format!(
+                        "the array's height above the floor must be in 0.05..=10 m, got {height} \
+                         (set floor_height_m when the array's mount does not give it)"
+                    ),
+                ));
+            }
+            if let Some(h) = config.ceiling_height_m
+                && !(h.is_finite() && h > height + 0.1 && h <= 100.0)
+            {
+                return Err(bad(
+                    "ceiling_height_m",
+                    format!("must be above the array ({height} m) and at most 100 m, got {h}"),
+                ));
+            }
+            let gain = config.floor_fit_min_gain;
+            if !(gain.is_finite() && (0.0..=1.0).contains(&gain)) {
+                return Err(bad("floor_fit_min_gain", format!("must be in 0..=1, got {gain}")));
+            }
+            let up = Unit::new_normalize(mount.rotation.inverse() * Vector3::z());
+            let geometry = floor_fit::FloorGeometry {
+                up,
+                height_m: height,
+                ceiling_m: config.ceiling_height_m,
+                reflection: beta,
+                min_gain: gain,
+            };
+            let window = crate::stft::Window::Hann.coefficients(frame_len);
+            Some(floor_fit::FloorFit::new(geometry, &positions, c, fs, &window, lo, band.len()))
+        } else {
+            None
+        };
         let fine_spacing = grid::SphereGrid::icosphere(config.fine_level).mean_spacing_rad();
         let pair_dist: Vec<f64> =
             pair_mics.iter().map(|&(i, j)| (positions[j] - positions[i]).norm()).collect();
@@ -312,6 +383,7 @@ impl Srp {
             projected: 0,
             max_step_rad: 0.75 * fine_spacing,
             diffuse,
+            floor,
         })
     }
 
@@ -439,7 +511,24 @@ impl Srp {
             } else {
                 (self.region.clamp(grid_dir), grid_coherence, 0.0)
             };
-            out.push(PotentialSource { direction_in_array: direction, energy, inverse_range_per_m: kappa });
+            // The floor's image fitted: the potential gets the direct path's
+            // direction and range; the search's own bookkeeping (exclusion,
+            // projection, suppression) keeps the plane-wave peak it measured.
+            let fitted = match self.floor.as_mut() {
+                Some(fit) if refine && grid_coherence >= self.config.floor_fit_min_coherence => {
+                    fit.fit(&self.cc, &direction, &self.gains)
+                }
+                _ => None,
+            };
+            let (reported, reported_kappa) = match fitted {
+                Some(f) => (self.region.clamp(f.direction), 1.0 / f.range_m),
+                None => (direction, kappa),
+            };
+            out.push(PotentialSource {
+                direction_in_array: reported,
+                energy,
+                inverse_range_per_m: reported_kappa,
+            });
             self.found.push(direction.into_inner());
             self.found_refined.push(refine.then_some(kappa));
             if out.len() < self.config.max_sources {
@@ -455,6 +544,9 @@ impl Srp {
         self.cc.arch = arch;
         self.tables.arch = arch;
         self.refiner.arch = arch;
+        if let Some(f) = self.floor.as_mut() {
+            f.arch = arch;
+        }
     }
 
     /// Directivity gains of the microphones toward `d`.
@@ -477,7 +569,14 @@ impl Srp {
     pub fn take_stats(&mut self) -> SrpStats {
         let [searches, cells, fine] = std::mem::take(&mut self.tables.counters);
         let refine = std::mem::take(&mut self.refiner.evaluations);
-        SrpStats { searches, cells_opened: cells, fine_points: fine, refine_evaluations: refine }
+        let floor = self.floor.as_mut().map_or(0, |f| std::mem::take(&mut f.evaluations));
+        SrpStats {
+            searches,
+            cells_opened: cells,
+            fine_points: fine,
+            refine_evaluations: refine,
+            floor_fit_evaluations: floor,
+        }
     }
 
     /// Sum of the pair weights (directivity) at `d`; the number of pairs for

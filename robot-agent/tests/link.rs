@@ -190,6 +190,7 @@ fn hello(id: &str) -> Hello {
             preset: None,
             microphone_positions: vec![],
             srp_band_hz: None,
+            direct_path_elevations: false,
         },
         software_version: "test".into(),
         signature_bands: None,

@@ -127,6 +127,7 @@ fn hello(id: &str) -> Hello {
             preset: Some("respeaker-4".into()),
             microphone_positions: vec![],
             srp_band_hz: None,
+            direct_path_elevations: false,
         },
         software_version: "test".into(),
         signature_bands: None,

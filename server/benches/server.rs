@@ -419,6 +419,7 @@ fn hello(i: usize, folded: bool) -> wire::RobotMessage {
             preset: None,
             microphone_positions: if folded { planar_ring() } else { vec![] },
             srp_band_hz: folded.then_some([BAND_HZ.0, BAND_HZ.1]),
+            direct_path_elevations: false,
         },
         software_version: "bench".into(),
         signature_bands: None,
@@ -670,6 +671,7 @@ fn bench_sources(quick: bool) {
         preset: None,
         microphone_positions: vec![],
         srp_band_hz: None,
+        direct_path_elevations: false,
     };
     let sources = [
         Point3::new(1.0, 0.5, 1.2),

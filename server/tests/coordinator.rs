@@ -29,6 +29,7 @@ fn array() -> ArrayInfo {
         preset: None,
         microphone_positions: vec![],
         srp_band_hz: None,
+        direct_path_elevations: false,
     }
 }
 
@@ -335,6 +336,21 @@ fn declared_planar_arrays_get_the_floor_image_model_and_others_do_not() {
     assert!(undeclared.z - source.z > 0.15, "undeclared: {undeclared} is pulled up from {source}");
 }
 
+/// A robot that fitted the floor's reflection into its DoAs says so
+/// (`ArrayInfo::direct_path_elevations`): its DoAs of the direct path are
+/// folded without a pull and meet at the source. Sent without the flag, the
+/// same DoAs are corrected for a pull they do not have and meet below it.
+#[test]
+fn direct_path_elevations_are_folded_without_a_pull() {
+    let source = Point3::new(0.0, 0.0, 1.2);
+    let config = CoordinatorConfig::default();
+    let direct = octagon_fold(0.0);
+    let declared = folded_published(config.clone(), Some(OCTAGON_BAND), &direct, None, &source, true).0;
+    let undeclared = folded_published(config, Some(OCTAGON_BAND), &direct, None, &source, false).0;
+    assert!((declared - source).norm() < 0.02, "declared: {declared} vs {source}");
+    assert!(source.z - undeclared.z > 0.1, "undeclared: {undeclared} is pulled down from {source}");
+}
+
 /// With `doa.reverberant_pull` on, a DoA's coherence sets the floor image's
 /// weight (`floor_image::reverberant_reflection`); off, the fixed
 /// `floor_reflection` does, whatever the DoA says.
@@ -371,7 +387,7 @@ fn planar_elevation_noise_widens_the_published_height_only() {
         let mut config = CoordinatorConfig::default();
         config.doa.planar_elevation_noise = on;
         let fold = octagon_fold(config.doa.floor_reflection);
-        folded_published(config, Some(OCTAGON_BAND), &fold, None, &source)
+        folded_published(config, Some(OCTAGON_BAND), &fold, None, &source, false)
     };
     let (off_p, off_cov) = published(false);
     let (on_p, on_cov) = published(true);
@@ -393,7 +409,7 @@ fn folded_estimate(
     coherence: Option<f64>,
     source: &Point3<f64>,
 ) -> Point3<f64> {
-    folded_published(config, band, fold, coherence, source).0
+    folded_published(config, band, fold, coherence, source, false).0
 }
 
 /// [`folded_estimate`]'s position and its covariance.
@@ -403,10 +419,16 @@ fn folded_published(
     fold: &soundmap_server::floor_image::FloorFold,
     coherence: Option<f64>,
     source: &Point3<f64>,
+    direct_path_elevations: bool,
 ) -> (Point3<f64>, nalgebra::Matrix3<f64>) {
     let mut c = Coordinator::new(config).unwrap();
-    let planar =
-        ArrayInfo { microphone_count: 8, microphone_positions: octagon(), srp_band_hz: band, ..array() };
+    let planar = ArrayInfo {
+        microphone_count: 8,
+        microphone_positions: octagon(),
+        srp_band_hz: band,
+        direct_path_elevations,
+        ..array()
+    };
     let conns: Vec<_> = ["a", "b"]
         .iter()
         .map(|id| c.connect(T0, Hello { array: planar.clone(), ..hello(id) }, None).unwrap().conn)

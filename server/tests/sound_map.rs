@@ -20,6 +20,7 @@ fn array() -> ArrayInfo {
         preset: None,
         microphone_positions: vec![],
         srp_band_hz: None,
+        direct_path_elevations: false,
     }
 }
 

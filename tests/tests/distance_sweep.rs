@@ -17,7 +17,8 @@
 //! `SOUNDMAP_DISTANCE_SOURCE_HEIGHT` (m, default 1.2); and
 //! `SOUNDMAP_DISTANCE_CEILING` (m): the ceiling height the coordinator's
 //! floor-image model is told (default: the room's, 3 m; 100 leaves the
-//! ceiling out of the model).
+//! ceiling out of the model). `SOUNDMAP_DISTANCE_FLOOR_FIT=1` turns on the
+//! agents' experimental floor-reflection fit (`[agent.srp] floor_fit`).
 
 use soundmap_sim::report::derived::Derived;
 use soundmap_sim::report::{RunRecord, Summary};
@@ -74,8 +75,13 @@ impl Source {
 fn scenario(distance_m: f64, seed: u64, source: &Source) -> Scenario {
     let [x, y, _] = SOURCE;
     let (signal, z) = (&source.signal, source.height_m);
-    let ceiling =
+    let mut ceiling =
         source.ceiling_m.map_or(String::new(), |h| format!("[coordinator.doa]\nceiling_height_m = {h}\n"));
+    // `SOUNDMAP_DISTANCE_FLOOR_FIT=1`: the agents fit the floor's reflection
+    // (`[agent.srp] floor_fit`, experimental).
+    if std::env::var("SOUNDMAP_DISTANCE_FLOOR_FIT").is_ok_and(|v| v != "0") {
+        ceiling.push_str("[agent.srp]\nfloor_fit = true\n");
+    }
     let text = format!(
         r#"name = "distance-{distance_m}"
 description = "two robots at 90 degrees, {distance_m} m from a white-noise source (14 x 12 m room, RT60 0.5 s)"

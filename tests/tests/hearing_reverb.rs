@@ -195,6 +195,7 @@ fn output_directions(
         }
     }
     let mut directions = Vec::new();
+    let config = &for_case(config, case);
     run_pipeline(array, config, &x, |r, t| {
         let d = match output {
             Output::Strongest => r.potentials.first().map(|p| p.direction_in_array),
@@ -288,12 +289,14 @@ fn pioneer_in_reverberant_rooms() {
     assert!(reverb.median < 2.5 && reverb.max < 8.0, "RT60 0.65 s: {reverb:?}");
 }
 
+/// The default pipeline with the SRP settings `srp`.
+fn with_srp(srp: soundmap_agent::pipeline::SrpConfig) -> PipelineConfig {
+    PipelineConfig { srp, ..PipelineConfig::default() }
+}
+
 /// The default pipeline with the near-field refinement on.
 fn near_field() -> PipelineConfig {
-    PipelineConfig {
-        srp: soundmap_agent::pipeline::SrpConfig { near_field: true, ..Default::default() },
-        ..PipelineConfig::default()
-    }
+    with_srp(soundmap_agent::pipeline::SrpConfig { near_field: true, ..Default::default() })
 }
 
 /// CI subset of the near-field refinement (`[srp] near_field`): in the same
@@ -309,6 +312,35 @@ fn near_field_refinement_in_rooms_without_reflections() {
     print_row("pioneer, near field", 0.65, false, &sphere);
     assert!(sphere.median <= 0.25 && sphere.max <= 0.5, "{sphere:?}");
     assert!(sphere.max < 0.5 * plane.max, "near field {sphere:?}, plane wave {plane:?}");
+}
+
+/// The default pipeline with the floor-reflection fit on (`[srp] floor_fit`;
+/// each case tells it the array's height, see [`for_case`]).
+fn floor_fit() -> PipelineConfig {
+    with_srp(soundmap_agent::pipeline::SrpConfig { floor_fit: true, ..Default::default() })
+}
+
+/// CI subset of the floor-reflection fit (`[srp] floor_fit`): on the
+/// sweep's first four cases (sources 1.7–3.7 m away; 4.12° → 1.03° at the
+/// median when measured), the single-frame peaks move to the direct path,
+/// and without reflections nothing changes (the guard keeps the plane-wave
+/// peak when the floor's image does not fit better). Farther sources keep
+/// most of their pull (`BENCHMARKS.md`, "The floor's reflection, fitted").
+/// The sweep: `SOUNDMAP_FLOOR_FIT=1 cargo test -p soundmap-sim --test
+/// hearing_reverb reported_sweep -- --ignored --nocapture`.
+#[test]
+fn floor_fit_in_reverberant_rooms() {
+    let fit = floor_fit();
+    let plane = run_set("16soundsusb-pioneer", 0.65, 4, true, 1000);
+    let fitted = run_set_with(&fit, "16soundsusb-pioneer", 0.65, 4, true, 1000);
+    let dry_plane = run_set("16soundsusb-pioneer", 0.65, 4, false, 1000);
+    let dry_fitted = run_set_with(&fit, "16soundsusb-pioneer", 0.65, 4, false, 1000);
+    print_row("pioneer, plane wave", 0.65, true, &plane);
+    print_row("pioneer, floor fit", 0.65, true, &fitted);
+    print_row("pioneer, plane wave", 0.65, false, &dry_plane);
+    print_row("pioneer, floor fit", 0.65, false, &dry_fitted);
+    assert!(fitted.median < 0.5 * plane.median, "floor fit {fitted:?}, plane wave {plane:?}");
+    assert!((dry_fitted.max - dry_plane.max).abs() < 0.05, "{dry_fitted:?} against {dry_plane:?}");
 }
 
 /// The near-field refinement against the plane-wave fit on the sweep's
@@ -436,6 +468,7 @@ fn corner_hops(case: &Case, emission: Emission, config: &PipelineConfig) -> Corn
     }
     let truth = truth(case);
     let (mut hops, mut on_source, mut on_azimuth, mut astray) = (0usize, 0usize, 0usize, 0usize);
+    let config = &for_case(config, case);
     run_pipeline(&array, config, &x, |r, t| {
         if t < CORNER_SKIP_S {
             return;
@@ -480,8 +513,30 @@ fn print_corner(
 /// diffuse_compensation`, `SOUNDMAP_SHAPED_NOISE=1` turns `[tracker]
 /// shaped_measurement_noise` on, `SOUNDMAP_DIFFUSE_MARGIN=x` sets `[tracker]
 /// diffuse_margin`.
+/// `config` with the floor-reflection fit told the case's array height
+/// (and, with `SOUNDMAP_FLOOR_CEILING=1`, the ceiling's).
+fn for_case(config: &PipelineConfig, case: &Case) -> PipelineConfig {
+    let mut config = config.clone();
+    if config.srp.floor_fit {
+        config.srp.floor_height_m = Some(case.array_at.z);
+        if std::env::var("SOUNDMAP_FLOOR_CEILING").is_ok_and(|v| v != "0") {
+            config.srp.ceiling_height_m = Some(case.size.z);
+        }
+    }
+    config
+}
+
 fn measured_config() -> PipelineConfig {
     let mut config = PipelineConfig::default();
+    if let Ok(v) = std::env::var("SOUNDMAP_FLOOR_FIT") {
+        config.srp.floor_fit = v != "0";
+    }
+    if let Ok(v) = std::env::var("SOUNDMAP_FLOOR_MIN_GAIN") {
+        config.srp.floor_fit_min_gain = v.parse().expect("SOUNDMAP_FLOOR_MIN_GAIN: a number");
+    }
+    if let Ok(v) = std::env::var("SOUNDMAP_FLOOR_REFLECTION") {
+        config.srp.floor_reflection = v.parse().expect("SOUNDMAP_FLOOR_REFLECTION: a number");
+    }
     if let Ok(v) = std::env::var("SOUNDMAP_DIFFUSE_COMPENSATION") {
         config.srp.diffuse_compensation = v.parse().expect("SOUNDMAP_DIFFUSE_COMPENSATION: a number");
     }
@@ -617,7 +672,11 @@ fn error_parts_sweep() {
 /// coordinator's floor-image model expects as in [`error_parts_sweep`], and
 /// the share of frames after `SKIP_S` that have
 /// one (smallest and median over cases). `SOUNDMAP_DIFFUSE_MARGIN` sets
-/// `[tracker] diffuse_margin` (see `BENCHMARKS.md`, "Reverberant rooms"):
+/// `[tracker] diffuse_margin` (see `BENCHMARKS.md`, "Reverberant rooms");
+/// `SOUNDMAP_FLOOR_FIT=1` turns on `[srp] floor_fit` (with
+/// `SOUNDMAP_FLOOR_REFLECTION`, `SOUNDMAP_FLOOR_MIN_GAIN`, and
+/// `SOUNDMAP_FLOOR_CEILING=1` for the room's ceiling), `SOUNDMAP_CASES=1`
+/// prints each case:
 /// `cargo test -p soundmap-sim --test hearing_reverb reported_sweep -- --ignored --nocapture`.
 #[test]
 #[ignore = "about a minute; run with --ignored --nocapture"]
@@ -654,6 +713,16 @@ fn reported_sweep() {
                     }
                     for (part, f) in parts.iter_mut().zip(&frames) {
                         part.push(if f.is_empty() { f64::NAN } else { quantile(f, 0.5) });
+                    }
+                    if std::env::var_os("SOUNDMAP_CASES").is_some() {
+                        let rel = case.source - case.array_at;
+                        eprintln!(
+                            "  case {seed}: range {:.2} m, elevation {:.1}°, whole {:.2}°, elevation {:+.2}°",
+                            rel.norm(),
+                            (rel.z / rel.xy().norm()).atan().to_degrees(),
+                            parts[0].last().unwrap(),
+                            parts[2].last().unwrap()
+                        );
                     }
                     parts[4].push(ds.len() as f64 / frames_after);
                 }

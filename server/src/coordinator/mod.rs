@@ -318,6 +318,10 @@ impl Coordinator {
         let edges = entry.hello.signature_bands.as_deref();
         let aperture_m = entry.aperture_m;
         let declared = entry.hello.array.srp_band_hz;
+        // A robot that fitted the floor's reflection into its DoAs (see
+        // `ArrayDescription.direct_path_elevations`) sends the direct path:
+        // its rays are folded without a pull.
+        let direct_path = entry.hello.array.direct_path_elevations;
         let rays = obs
             .doas
             .iter()
@@ -333,11 +337,14 @@ impl Coordinator {
                 // share of the SRP band the track is heard in rescales it), or
                 // else as that share says (see floor_image, "Narrow bands").
                 let share = declared.and_then(|[lo, hi]| band_share(band, (lo, hi)));
-                let reflection = d
-                    .coherence
-                    .filter(|_| pull > 0.0)
-                    .and_then(|c| reverberant_reflection(c, share?, pull))
-                    .unwrap_or_else(|| band_reflection(reflection, narrow_reflection, share));
+                let reflection = if direct_path {
+                    0.0
+                } else {
+                    d.coherence
+                        .filter(|_| pull > 0.0)
+                        .and_then(|c| reverberant_reflection(c, share?, pull))
+                        .unwrap_or_else(|| band_reflection(reflection, narrow_reflection, share))
+                };
                 let fold = pattern.map(|p| FloorFold {
                     array_height_m,
                     reflection,

@@ -39,6 +39,7 @@ pub fn array() -> ArrayInfo {
         preset: Some("16soundsusb-pioneer".into()),
         microphone_positions: vec![],
         srp_band_hz: None,
+        direct_path_elevations: false,
     }
 }
 

@@ -1,0 +1,474 @@
+//! The floor's reflection, fitted: each peak's elevation and range refined
+//! with the floor image (and the ceiling's, when its height is known) in the
+//! steering model.
+//!
+//! **Why.** A microphone array on a ground robot hears every source twice
+//! within a frame: the direct path and its reflection off the floor, which
+//! arrives 0.5–1 ms later from the source's mirror image below the floor
+//! (and, with a ceiling, the ceiling's image above, a few ms later). A nearly
+//! planar array (the 16SoundsUSB rings are 1.5 cm apart in height across
+//! 0.49 m) measures elevation only through `cos e` of the horizontal
+//! slowness, so it cannot separate the image, folded to `+e'` above the
+//! horizon, from the direct path at `e`: both lie in one elevation lobe, and
+//! the plane-wave peak is the direction whose phases best match their
+//! *coherent sum*. That sum reads high: in image-source rooms with RT60
+//! 0.65 s the Pioneer layout's single-frame peaks were 3.5–5.9° high for
+//! sources 2.6–4.8 m away and 6–15° above the array plane (`BENCHMARKS.md`,
+//! "Reverberant rooms"). Onsets, PHAT-β, band limits and frame averaging do
+//! not reach it: the image is coherent with the direct path inside every
+//! frame, so no weighting of bins or frames removes it. It has to be
+//! modelled.
+//!
+//! **Model.** For a candidate source `s` (array frame, range `ρ = |s|`) the
+//! array expects at microphone `pᵢ` and bin `ω`
+//! `aᵢ(ω) = Σ_q γ_q (ρ/|s_q − pᵢ|) e^{−jω(|s_q − pᵢ| − ρ)/c}` over the direct
+//! path `s₀ = s` (γ = 1) and the images `s_q`: `s` mirrored through the floor
+//! (γ = `reflection`), and with a ceiling height the ceiling's mirror (γ =
+//! `reflection`). Each image's γ also carries the analysis window's
+//! autocorrelation at its extra delay: a copy delayed by τ shares only that
+//! part of a frame with the direct sound (Hann, 256 samples at 16 kHz: 0.99
+//! at 0.7 ms, 0.83 at 4 ms). The fit maximizes the steered power of the
+//! whitened spectra against the model's phases,
+//! `P(s) = Σ_k |Σᵢ gᵢ X̃ᵢ[k] âᵢ*(ω_k)|²`, `â = a/|a|` (PHAT-matched, the plane
+//! wave's `â` being the refinement's own steering; see [`super::refine`]).
+//! The unknowns are the elevation above the floor and the range; the
+//! azimuth is the plane-wave peak's (the floor and ceiling images lie at the
+//! source's own azimuth, and a planar array measures azimuth well). This is
+//! the reflection-aware steering of robot sound localization (An, Lee, Lee
+//! and Yoon, "Reflection-Aware Sound Source Localization", ICRA 2018)
+//! reduced to the two planes a ground robot always has, with the range as a
+//! second unknown: the image's delay and direction both follow from it, so
+//! a 0.5 m array resolves it at 1–5 m.
+//!
+//! **Search.** The model's steered power is sharp in the image's extra
+//! path `Δ = |s′| − |s|` (a path error of half a wavelength at the band's
+//! top, 2 cm at 8 kHz, turns the image's phase over) and smooth in elevation;
+//! in (elevation, range) its peak is a narrow ridge along which `Δ` stays
+//! put (`Δ ≈ 2h sin e + 2h²/ρ`), which a coarse grid in range steps over
+//! (a 6-range grid missed a noise-free source's peak by 2.3°). So the fit
+//! works in (elevation, `Δ`), the range following in closed form,
+//! `ρ = (4h² − Δ²)/(2Δ − 4h sin e)`: a scan of `Δ` in 15 mm steps (for
+//! ranges 1–12 m) at the plane-wave peak's elevation, then a coordinate
+//! ascent (steps halved from 1° and 7.5 mm down to 0.1°) from the scan's two
+//! best local maxima. 30–110 model evaluations per peak.
+//!
+//! **What it does not do yet.** A single frame's peak in a reverberant room
+//! scatters by several degrees, and the ascent finds the model's maximum
+//! *near* it: for sources 3.7–4.8 m away and 8–14° above the array (RT60
+//! 0.65 s) the fitted elevations stay 2.7–6.4° high, as the plane-wave
+//! peaks were. A search of every elevation and range per frame (an
+//! experiment on the same cases: 0.5° × 0.1 m, ~7000 evaluations) put those
+//! within 0.3° at the median, so the model holds; what is missing is a
+//! search that cheap. The model's cross term between the direct and image
+//! beams is a sum over bins of `e^{jωΔ}`, so for one elevation every `Δ`
+//! could come from one transform instead of one evaluation each.
+//!
+//! **Guard.** The fit is kept only when its power beats the best the direct
+//! path alone (spherical, a pattern search from the plane-wave peak at the
+//! fitted range) gives by more than `min_gain` (relative, default 0):
+//! where the floor does not reflect, or the data do not support the image,
+//! the peak keeps its plane-wave direction.
+//!
+//! What it needs to know: the floor's normal in the array frame and the
+//! array's height above the floor (from the array's mount on the base,
+//! `base_from_array`, the base frame's origin on the floor as ROS's
+//! `base_footprint`), optionally the ceiling's height, and a reflection
+//! coefficient. Measured in `BENCHMARKS.md`, "The floor's reflection, fitted".
+
+use nalgebra::{Unit, Vector3};
+
+use super::phat::CrossCorrelator;
+
+/// Bins processed together.
+const LANES: usize = 8;
+
+/// Ranges the fit considers (m).
+const MIN_RANGE_M: f64 = 1.0;
+const MAX_RANGE_M: f64 = 12.0;
+/// Elevations the fit considers (floor frame, rad).
+const LOWEST_EL_RAD: f64 = -4.0 * std::f64::consts::PI / 180.0;
+const HIGHEST_EL_RAD: f64 = 70.0 * std::f64::consts::PI / 180.0;
+/// Step of the scan of the image's extra path (m): the steered power of the
+/// model is sharp in it (a path error of λ/2 at the band's top, 2 cm at
+/// 8 kHz, turns the image's phase over), smooth in elevation.
+const PATH_SCAN_STEP_M: f64 = 0.015;
+/// Most points of that scan.
+const MAX_PATH_SCAN: usize = 48;
+/// What the fit knows about the room.
+#[derive(Clone, Debug, PartialEq)]
+pub struct FloorGeometry {
+    /// Unit normal of the floor, pointing up, in the array frame.
+    pub up: Unit<Vector3<f64>>,
+    /// Height of the array origin above the floor (m).
+    pub height_m: f64,
+    /// Height of the ceiling above the floor (m), if known.
+    pub ceiling_m: Option<f64>,
+    /// Pressure reflection coefficient of the floor (and ceiling).
+    pub reflection: f64,
+    /// Smallest relative power gain over the direct path alone for the fit
+    /// to be kept.
+    pub min_gain: f64,
+}
+
+/// A fitted peak.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct FloorFitted {
+    /// Direct-path direction, array frame.
+    pub direction: Unit<Vector3<f64>>,
+    /// Range to the source (m).
+    pub range_m: f64,
+    /// Steered power of the model at the fit over the direct path's best.
+    pub gain: f64,
+}
+
+/// The fitter: planned once, allocation-free per frame.
+#[derive(Debug)]
+pub struct FloorFit {
+    geometry: FloorGeometry,
+    positions: Vec<Vector3<f64>>,
+    inv_c: f64,
+    domega: f64,
+    first_bin: usize,
+    padded: usize,
+    fs: f64,
+    /// Autocorrelation of the analysis window per lag (samples), normalized.
+    window_ac: Vec<f64>,
+    br: Vec<f32>,
+    bi: Vec<f32>,
+    /// Horizontal basis of the floor frame (array frame vectors).
+    e1: Vector3<f64>,
+    e2: Vector3<f64>,
+    /// Model evaluations since last read.
+    pub(super) evaluations: usize,
+    pub(super) arch: pulp::Arch,
+}
+
+/// Floor-frame coordinates of the candidate: azimuth, elevation (rad), range (m).
+#[derive(Clone, Copy, Debug)]
+struct Candidate {
+    el: f64,
+    range: f64,
+}
+
+impl FloorFit {
+    /// Plans the fit for microphones at `positions` (array frame, m), speed of
+    /// sound `c`, frames of `frame_len` at `fs` with the Hann `window`
+    /// coefficients, band bins `lo..lo + bins`.
+    pub fn new(
+        geometry: FloorGeometry,
+        positions: &[Vector3<f64>],
+        c: f64,
+        fs: f64,
+        window: &[f32],
+        lo: usize,
+        bins: usize,
+    ) -> Self {
+        let frame_len = window.len();
+        let padded = bins.div_ceil(LANES) * LANES;
+        let e: f64 = window.iter().map(|&w| (w as f64).powi(2)).sum();
+        let window_ac = (0..frame_len)
+            .map(|l| {
+                (0..frame_len - l).map(|n| window[n] as f64 * window[n + l] as f64).sum::<f64>()
+                    / e.max(1e-30)
+            })
+            .collect();
+        let up = geometry.up.into_inner();
+        let seed = if up.x.abs() < 0.9 { Vector3::x() } else { Vector3::y() };
+        let e1 = (seed - up * up.dot(&seed)).normalize();
+        let e2 = up.cross(&e1);
+        FloorFit {
+            geometry,
+            positions: positions.to_vec(),
+            inv_c: 1.0 / c,
+            domega: std::f64::consts::TAU * fs / frame_len as f64,
+            first_bin: lo,
+            padded,
+            fs,
+            window_ac,
+            br: vec![0.0; padded],
+            bi: vec![0.0; padded],
+            e1,
+            e2,
+            evaluations: 0,
+            arch: pulp::Arch::new(),
+        }
+    }
+
+    /// The geometry the fit assumes.
+    pub fn geometry(&self) -> &FloorGeometry {
+        &self.geometry
+    }
+
+    fn azimuth_elevation(&self, d: &Vector3<f64>) -> (f64, f64) {
+        let up = self.geometry.up.into_inner();
+        let z = d.dot(&up).clamp(-1.0, 1.0);
+        (d.dot(&self.e2).atan2(d.dot(&self.e1)), z.asin())
+    }
+
+    fn direction(&self, az: f64, el: f64) -> Vector3<f64> {
+        let up = self.geometry.up.into_inner();
+        (self.e1 * az.cos() + self.e2 * az.sin()) * el.cos() + up * el.sin()
+    }
+
+    /// Fits the peak at plane-wave direction `plane` on the whitened spectra
+    /// of `cc` with microphone gains `gains`. `None` when the model does not
+    /// beat the direct path alone by more than `min_gain`.
+    pub fn fit(
+        &mut self,
+        cc: &CrossCorrelator,
+        plane: &Unit<Vector3<f64>>,
+        gains: &[f32],
+    ) -> Option<FloorFitted> {
+        let (az, el0) = self.azimuth_elevation(plane);
+        let with_images = |s: &mut Self, c: Candidate| s.power(cc, gains, az, c, true);
+        let (best, p_best) = self.search_images(el0, with_images);
+        // The direct path alone: the same search without images, from the
+        // plane-wave peak at the fitted range.
+        let direct = |s: &mut Self, c: Candidate| s.power(cc, gains, az, c, false);
+        let c0 = Candidate { el: el0, range: best.range };
+        let p0 = direct(self, c0);
+        let (_, p_direct) = self.pattern(c0, p0, 0.5f64.to_radians(), 0.2, direct);
+        let gain = p_best / p_direct.max(1e-30);
+        (gain > 1.0 + self.geometry.min_gain).then(|| FloorFitted {
+            direction: Unit::new_normalize(self.direction(az, best.el)),
+            range_m: best.range,
+            gain,
+        })
+    }
+
+    /// The floor image's extra path (m) for a source at elevation `el` and
+    /// range `r`: `|s′| − |s|`, `s′` the image `2h` below the source's mirror.
+    fn image_path(&self, el: f64, r: f64) -> f64 {
+        let h = self.geometry.height_m;
+        (r * r + 4.0 * h * r * el.sin() + 4.0 * h * h).max(0.0).sqrt() - r
+    }
+
+    /// The range at which a source at elevation `el` has the floor image's
+    /// extra path `path` (the inverse of [`FloorFit::image_path`]:
+    /// `r = (4h² − Δ²)/(2Δ − 4h sin e)`), within `MIN_RANGE_M..=MAX_RANGE_M`.
+    fn range_for_path(&self, el: f64, path: f64) -> f64 {
+        let h = self.geometry.height_m;
+        let den = 2.0 * path - 4.0 * h * el.sin();
+        let r = if den > 1e-9 { (4.0 * h * h - path * path) / den } else { MAX_RANGE_M };
+        r.clamp(MIN_RANGE_M, MAX_RANGE_M)
+    }
+
+    /// The fit's search in (elevation, image path): a scan of the image's
+    /// extra path at the plane-wave elevation, then a coordinate ascent from
+    /// the scan's two best local maxima (see the module docs, "Search").
+    fn search_images(
+        &mut self,
+        el0: f64,
+        mut power: impl FnMut(&mut Self, Candidate) -> f64,
+    ) -> (Candidate, f64) {
+        let el0 = el0.clamp(LOWEST_EL_RAD, HIGHEST_EL_RAD);
+        let (far, near) = (self.image_path(el0, MAX_RANGE_M), self.image_path(el0, MIN_RANGE_M));
+        let steps = (((near - far) / PATH_SCAN_STEP_M).ceil() as usize).clamp(4, MAX_PATH_SCAN);
+        let mut scan = [(0.0f64, f64::MIN); MAX_PATH_SCAN + 1];
+        for (j, slot) in scan.iter_mut().enumerate().take(steps + 1) {
+            let path = far + (near - far) * j as f64 / steps as f64;
+            let c = Candidate { el: el0, range: self.range_for_path(el0, path) };
+            *slot = (path, power(self, c));
+        }
+        // The two best local maxima of the scan.
+        let mut starts = [(0.0f64, f64::MIN); 2];
+        for j in 0..=steps {
+            let v = scan[j].1;
+            let left = if j > 0 { scan[j - 1].1 } else { f64::MIN };
+            let right = if j < steps { scan[j + 1].1 } else { f64::MIN };
+            if v >= left && v >= right {
+                if v > starts[0].1 {
+                    starts = [scan[j], starts[0]];
+                } else if v > starts[1].1 {
+                    starts[1] = scan[j];
+                }
+            }
+        }
+        let mut best = (Candidate { el: el0, range: self.range_for_path(el0, starts[0].0) }, starts[0].1);
+        for &(path0, p0) in starts.iter().filter(|s| s.1 > f64::MIN) {
+            let (mut el, mut path, mut p) = (el0, path0, p0);
+            let (mut step_el, mut step_path) = (1f64.to_radians(), 0.5 * PATH_SCAN_STEP_M);
+            while step_el >= 0.1f64.to_radians() {
+                let mut moved = false;
+                for (te, tp) in [
+                    (el + step_el, path),
+                    (el - step_el, path),
+                    (el, path + step_path),
+                    (el, path - step_path),
+                ] {
+                    let te = te.clamp(LOWEST_EL_RAD, HIGHEST_EL_RAD);
+                    let q = power(self, Candidate { el: te, range: self.range_for_path(te, tp) });
+                    if q > p {
+                        (el, path, p, moved) = (te, tp, q, true);
+                        break;
+                    }
+                }
+                if !moved {
+                    step_el *= 0.5;
+                    step_path *= 0.5;
+                }
+            }
+            if p > best.1 {
+                best = (Candidate { el, range: self.range_for_path(el, path) }, p);
+            }
+        }
+        best
+    }
+
+    /// Coordinate pattern search in (elevation, log range) from `c`.
+    fn pattern(
+        &mut self,
+        mut c: Candidate,
+        mut p: f64,
+        mut step_el: f64,
+        mut step_log_range: f64,
+        mut power: impl FnMut(&mut Self, Candidate) -> f64,
+    ) -> (Candidate, f64) {
+        let min_el = 0.1f64.to_radians();
+        while step_el >= min_el {
+            let mut moved = false;
+            for trial in [
+                Candidate { el: c.el + step_el, ..c },
+                Candidate { el: c.el - step_el, ..c },
+                Candidate { range: (c.range * step_log_range.exp()).min(20.0), ..c },
+                Candidate { range: (c.range * (-step_log_range).exp()).max(0.5), ..c },
+            ] {
+                let q = power(self, trial);
+                if q > p {
+                    (c, p, moved) = (trial, q, true);
+                    break;
+                }
+            }
+            if !moved {
+                step_el *= 0.5;
+                step_log_range *= 0.5;
+            }
+        }
+        (c, p)
+    }
+
+    /// Steered power of the whitened spectra against the model at `c`
+    /// (with or without the images).
+    fn power(&mut self, cc: &CrossCorrelator, gains: &[f32], az: f64, c: Candidate, images: bool) -> f64 {
+        self.evaluations += 1;
+        crate::simd::run(self.arch, Evaluate { fit: self, cc, gains, az, c, images })
+    }
+
+    #[inline(always)]
+    fn power_body(
+        &mut self,
+        cc: &CrossCorrelator,
+        gains: &[f32],
+        az: f64,
+        c: Candidate,
+        images: bool,
+    ) -> f64 {
+        let up = self.geometry.up.into_inner();
+        let s = self.direction(az, c.el) * c.range;
+        let h = self.geometry.height_m;
+        let beta = self.geometry.reflection;
+        // Paths: the source and its images, with gains for the window's overlap.
+        let mut paths = [(s, 1.0f64); 3];
+        let mut n = 1;
+        if images {
+            let floor = s - up * (2.0 * (s.dot(&up) + h));
+            paths[n] = (floor, beta);
+            n += 1;
+            if let Some(ceiling) = self.geometry.ceiling_m {
+                let image = s + up * (2.0 * (ceiling - h - s.dot(&up)));
+                paths[n] = (image, beta);
+                n += 1;
+            }
+        }
+        let rho = c.range;
+        for path in paths.iter_mut().take(n).skip(1) {
+            let lag = ((path.0.norm() - rho) * self.inv_c * self.fs).round().max(0.0) as usize;
+            path.1 *= self.window_ac.get(lag).copied().unwrap_or(0.0);
+        }
+        let padded = self.padded;
+        self.br.fill(0.0);
+        self.bi.fill(0.0);
+        for (i, p) in self.positions.iter().enumerate() {
+            let g = gains[i];
+            if g == 0.0 {
+                continue;
+            }
+            // Per path: its lane phasors e^{+jω τ} for the first 8 bins and
+            // the 8-bin step, τ = (|s_q − p| − ρ)/c; amplitude γ ρ/|s_q − p|.
+            let mut pr = [[0f32; LANES]; 3];
+            let mut pi = [[0f32; LANES]; 3];
+            let mut step = [(0f32, 0f32); 3];
+            let mut amp = [0f32; 3];
+            for q in 0..n {
+                let r = (paths[q].0 - p).norm();
+                let tau = (r - rho) * self.inv_c;
+                amp[q] = (paths[q].1 * rho / r.max(1e-3)) as f32;
+                let (s1, c1) = (self.domega * tau).sin_cos();
+                let (s0, c0) = (self.domega * tau * self.first_bin as f64).sin_cos();
+                let (mut re, mut im) = (c0, s0);
+                for l in 0..LANES {
+                    pr[q][l] = re as f32;
+                    pi[q][l] = im as f32;
+                    (re, im) = (re * c1 - im * s1, re * s1 + im * c1);
+                }
+                let (s8, c8) = (self.domega * tau * LANES as f64).sin_cos();
+                step[q] = (c8 as f32, s8 as f32);
+            }
+            let xr = &cc.phat_re[i * padded..(i + 1) * padded];
+            let xi = &cc.phat_im[i * padded..(i + 1) * padded];
+            for (((br, bi), xr), xi) in self
+                .br
+                .chunks_exact_mut(LANES)
+                .zip(self.bi.chunks_exact_mut(LANES))
+                .zip(xr.chunks_exact(LANES))
+                .zip(xi.chunks_exact(LANES))
+            {
+                let mut ar = [0f32; LANES];
+                let mut ai = [0f32; LANES];
+                for q in 0..n {
+                    for l in 0..LANES {
+                        ar[l] += amp[q] * pr[q][l];
+                        ai[l] += amp[q] * pi[q][l];
+                    }
+                    let (c8, s8) = step[q];
+                    for l in 0..LANES {
+                        let nr = pr[q][l] * c8 - pi[q][l] * s8;
+                        pi[q][l] = pr[q][l] * s8 + pi[q][l] * c8;
+                        pr[q][l] = nr;
+                    }
+                }
+                for l in 0..LANES {
+                    let inv = g / (ar[l] * ar[l] + ai[l] * ai[l]).max(1e-20).sqrt();
+                    let (wr, wi) = (ar[l] * inv, ai[l] * inv);
+                    br[l] += xr[l] * wr - xi[l] * wi;
+                    bi[l] += xr[l] * wi + xi[l] * wr;
+                }
+            }
+        }
+        let mut acc = [0f32; LANES];
+        for (br, bi) in self.br.chunks_exact(LANES).zip(self.bi.chunks_exact(LANES)) {
+            for l in 0..LANES {
+                acc[l] += br[l] * br[l] + bi[l] * bi[l];
+            }
+        }
+        acc.iter().map(|&v| v as f64).sum()
+    }
+}
+
+struct Evaluate<'a> {
+    fit: &'a mut FloorFit,
+    cc: &'a CrossCorrelator,
+    gains: &'a [f32],
+    az: f64,
+    c: Candidate,
+    images: bool,
+}
+
+impl crate::simd::Kernel for Evaluate<'_> {
+    type Output = f64;
+
+    #[inline(always)]
+    fn run(self) -> f64 {
+        self.fit.power_body(self.cc, self.gains, self.az, self.c, self.images)
+    }
+}
