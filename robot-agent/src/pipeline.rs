@@ -184,6 +184,14 @@ pub fn aperture_scale(aperture_m: f64, full_m: f64) -> f64 {
     if aperture_m > 0.0 && full_m > 0.0 { (full_m / aperture_m).max(1.0) } else { 1.0 }
 }
 
+/// A track's floor-reflection correction (see [`Pipeline::correct_floor_pull`]).
+#[derive(Clone, Copy, Debug)]
+struct FloorOffset {
+    track_id: u64,
+    /// Elevation offset applied to what is reported (rad), smoothed.
+    offset_rad: f64,
+}
+
 /// STFT → SRP-PHAT → tracker for one array.
 #[derive(Debug)]
 pub struct Pipeline {
@@ -209,6 +217,11 @@ pub struct Pipeline {
     rotation_deadband_rad: f64,
     /// The base's position in the map at the current hop (from SLAM), if given.
     base_position: Option<Point3<f64>>,
+    /// With the floor-reflection fit: each reported track's elevation
+    /// offset (smoothed); the hops so far, and hops between fits.
+    floor_offsets: Vec<FloorOffset>,
+    floor_hops: usize,
+    floor_every: usize,
 }
 
 impl Pipeline {
@@ -266,6 +279,9 @@ impl Pipeline {
             tracks_frame: None,
             rotation_deadband_rad: config.tracker.rotation_deadband_deg.to_radians(),
             base_position: None,
+            floor_offsets: Vec::with_capacity(config.tracker.max_tracks),
+            floor_hops: 0,
+            floor_every: config.srp.floor_fit_every_hops,
         })
     }
 
@@ -380,6 +396,9 @@ impl Pipeline {
             });
             r.reported.truncate(self.signatures.max_tracks());
             self.signatures.update(self.stft.spectra(), &r.tracks, &r.reported, &mut r.signatures_db);
+            if self.srp.floor_fit_on() {
+                self.correct_floor_pull();
+            }
         } else {
             r.potentials.clear();
             r.tracks.clear();
@@ -387,6 +406,41 @@ impl Pipeline {
             r.signatures_db.clear();
         }
         &self.result
+    }
+
+    /// With `srp.floor_fit`: every `floor_fit_every_hops` hops, each reported
+    /// track's direction is fitted with the floor's reflection on the recent
+    /// frames' averaged cross-spectra ([`Srp::fit_floor`]), and the
+    /// elevation offset found (smoothed, half of each new fit) moves the
+    /// reported direction every hop. The tracker keeps tracking the
+    /// plane-wave peaks; only what is reported is corrected.
+    fn correct_floor_pull(&mut self) {
+        let r = &mut self.result;
+        self.floor_hops += 1;
+        if self.floor_hops.is_multiple_of(self.floor_every) {
+            for &i in &r.reported {
+                let (id, d) = (r.tracks[i].track_id, r.tracks[i].direction_in_array);
+                let Some(fit) = self.srp.fit_floor(&d) else { continue };
+                let room = self.floor_offsets.len() < self.floor_offsets.capacity();
+                match self.floor_offsets.iter_mut().find(|f| f.track_id == id) {
+                    Some(f) => f.offset_rad = 0.5 * (f.offset_rad + fit.offset_rad),
+                    None if room => {
+                        self.floor_offsets.push(FloorOffset { track_id: id, offset_rad: fit.offset_rad })
+                    }
+                    None => {}
+                }
+            }
+            let tracks = &r.tracks;
+            self.floor_offsets.retain(|f| tracks.iter().any(|t| t.track_id == f.track_id));
+        }
+        for &i in &r.reported {
+            let t = &mut r.tracks[i];
+            if let Some(f) = self.floor_offsets.iter().find(|f| f.track_id == t.track_id)
+                && let Some(d) = self.srp.shift_elevation(&t.direction_in_array, f.offset_rad)
+            {
+                t.direction_in_array = d;
+            }
+        }
     }
 
     /// [`Pipeline::process_hop`] returning an error instead of panicking on a
@@ -420,6 +474,8 @@ impl Pipeline {
     pub fn reset(&mut self) {
         self.stft.reset();
         self.tracker.reset();
+        self.srp.reset();
+        self.floor_offsets.clear();
         self.tracks_frame = None;
         self.signatures.reset();
         self.result.potentials.clear();

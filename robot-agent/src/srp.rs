@@ -122,9 +122,10 @@ pub struct SrpConfig {
     pub min_separation_deg: f64,
     /// Directions searched; `None` uses the array's default region.
     pub region: Option<RegionConfig>,
-    /// Refine each coherent peak's elevation and range with the floor's
-    /// reflection in the steering model ([`floor_fit`]): the DoAs are then
-    /// the direct path's, not pulled up by the floor's image.
+    /// Fit each reported track's elevation and range with the floor's
+    /// reflection in the steering model, on the recent frames' averaged
+    /// cross-spectra ([`floor_fit`]): the DoAs are then the direct path's,
+    /// not pulled up by the floor's image.
     pub floor_fit: bool,
     /// Pressure reflection coefficient of the floor (and ceiling) the fit
     /// assumes, in `0..=1`.
@@ -136,11 +137,14 @@ pub struct SrpConfig {
     /// Height of the ceiling above the floor, m, if known (its image joins
     /// the model).
     pub ceiling_height_m: Option<f64>,
-    /// Peaks whose grid coherence is below this keep their plane-wave fit.
-    pub floor_fit_min_coherence: f64,
     /// Smallest relative gain of steered power over the direct path alone
     /// for a fit to be kept.
     pub floor_fit_min_gain: f64,
+    /// Frames the averaged cross-spectra of the fit remember (the forgetting
+    /// time constant, in frames).
+    pub floor_fit_frames: f64,
+    /// Hops between two fits of each reported track (1: every hop).
+    pub floor_fit_every_hops: usize,
 }
 
 impl Default for SrpConfig {
@@ -167,8 +171,9 @@ impl Default for SrpConfig {
             floor_reflection: 0.8,
             floor_height_m: None,
             ceiling_height_m: None,
-            floor_fit_min_coherence: 0.08,
             floor_fit_min_gain: 0.0,
+            floor_fit_frames: 16.0,
+            floor_fit_every_hops: 8,
         }
     }
 }
@@ -231,8 +236,10 @@ pub struct Srp {
     projected: usize,
     max_step_rad: f64,
     diffuse: diffuse::DiffuseMap,
-    /// The floor-reflection fit, when on.
+    /// The floor-reflection fit, when on, and the averaged cross-spectra
+    /// it fits tracks on.
     floor: Option<floor_fit::FloorFit>,
+    csm: Option<floor_fit::Csm>,
 }
 
 impl Srp {
@@ -323,6 +330,14 @@ impl Srp {
             refiner = refiner.with_diffuse_power();
         }
         let (normal, _) = array.best_fit_plane();
+        let padded_bins = cc.padded;
+        let frames = config.floor_fit_frames;
+        if !(frames.is_finite() && (1.0..=1000.0).contains(&frames)) {
+            return Err(bad("floor_fit_frames", format!("must be in 1..=1000 frames, got {frames}")));
+        }
+        if config.floor_fit_every_hops == 0 {
+            return Err(bad("floor_fit_every_hops", "must be at least 1".into()));
+        }
         let floor = if config.floor_fit {
             let beta = config.floor_reflection;
             if !(beta.is_finite() && (0.0..=1.0).contains(&beta)) {
@@ -383,6 +398,7 @@ impl Srp {
             projected: 0,
             max_step_rad: 0.75 * fine_spacing,
             diffuse,
+            csm: floor.as_ref().map(|_| floor_fit::Csm::new(m, padded_bins, config.floor_fit_frames)),
             floor,
         })
     }
@@ -473,6 +489,9 @@ impl Srp {
         if self.cc.phat_energy.iter().all(|&e| e == 0.0) {
             return; // silence: no direction
         }
+        if let Some(csm) = self.csm.as_mut() {
+            csm.accumulate(&self.cc);
+        }
         self.cc.correlate();
         let sep = self.config.min_separation_deg.to_radians();
         let (sin_sep, cos_sep) = sep.sin_cos();
@@ -511,24 +530,7 @@ impl Srp {
             } else {
                 (self.region.clamp(grid_dir), grid_coherence, 0.0)
             };
-            // The floor's image fitted: the potential gets the direct path's
-            // direction and range; the search's own bookkeeping (exclusion,
-            // projection, suppression) keeps the plane-wave peak it measured.
-            let fitted = match self.floor.as_mut() {
-                Some(fit) if refine && grid_coherence >= self.config.floor_fit_min_coherence => {
-                    fit.fit(&self.cc, &direction, &self.gains)
-                }
-                _ => None,
-            };
-            let (reported, reported_kappa) = match fitted {
-                Some(f) => (self.region.clamp(f.direction), 1.0 / f.range_m),
-                None => (direction, kappa),
-            };
-            out.push(PotentialSource {
-                direction_in_array: reported,
-                energy,
-                inverse_range_per_m: reported_kappa,
-            });
+            out.push(PotentialSource { direction_in_array: direction, energy, inverse_range_per_m: kappa });
             self.found.push(direction.into_inner());
             self.found_refined.push(refine.then_some(kappa));
             if out.len() < self.config.max_sources {
@@ -546,6 +548,9 @@ impl Srp {
         self.refiner.arch = arch;
         if let Some(f) = self.floor.as_mut() {
             f.arch = arch;
+        }
+        if let Some(c) = self.csm.as_mut() {
+            c.arch = arch;
         }
     }
 
@@ -652,6 +657,35 @@ impl Srp {
         // diffuse part again: the tracker's thresholds are on the raw coherence.
         let coherence = (local.power + local.diffuse - e0) / ((s1 * s1 - s2) * mean_energy * k).max(1e-30);
         (d, coherence, kappa)
+    }
+
+    /// The floor-reflection fit of the direction `d` (a track's) on the
+    /// recent frames' averaged cross-spectra; `None` when the fit is off,
+    /// has no frames yet, or does not beat the direct path alone.
+    pub fn fit_floor(&mut self, d: &Unit<Vector3<f64>>) -> Option<floor_fit::FloorFitted> {
+        let csm = self.csm.as_ref().filter(|c| c.frames > 0)?;
+        for (g, m) in self.gains.iter_mut().zip(&self.mics) {
+            *g = m.gain(d) as f32;
+        }
+        self.floor.as_mut()?.fit_averaged(csm, d, &self.gains)
+    }
+
+    /// The floor frame's elevation of `d` moved by `offset_rad` (azimuth
+    /// kept), when the floor fit is on.
+    pub fn shift_elevation(&self, d: &Unit<Vector3<f64>>, offset_rad: f64) -> Option<Unit<Vector3<f64>>> {
+        self.floor.as_ref().map(|f| f.shift_elevation(d, offset_rad))
+    }
+
+    /// Whether the floor-reflection fit is on.
+    pub fn floor_fit_on(&self) -> bool {
+        self.floor.is_some()
+    }
+
+    /// Forgets the averaged cross-spectra (after a gap in the input).
+    pub fn reset(&mut self) {
+        if let Some(c) = self.csm.as_mut() {
+            c.reset();
+        }
     }
 
     /// Zeroes every pair's correlation around the TDOAs of direction `d`.

@@ -270,6 +270,15 @@ fn the_hello_declares_the_layout_and_the_core_passes_signatures_through() {
     let limits = Limits::at(Stamp::from_ns(2_000_000_000_000_000_000));
     let back = Hello::from_wire(&hello.to_wire(), &limits).unwrap();
     assert_eq!(back, hello);
+    // Plane-wave elevations by default; the floor fit's are the direct path's,
+    // and the flag survives the wire.
+    assert!(!hello.array.direct_path_elevations);
+    let mut fitted = config.clone();
+    fitted.srp.floor_fit = true;
+    let plain = agent::hello(RobotId::parse("r1", "robot_id").unwrap(), &array, "test".into());
+    let direct = fitted.declare_tracks(plain).unwrap();
+    assert!(direct.array.direct_path_elevations);
+    assert!(Hello::from_wire(&direct.to_wire(), &limits).unwrap().array.direct_path_elevations);
 
     // The core passes the pipeline's DoAs, signatures included, through unchanged.
     let scene = two_sources();

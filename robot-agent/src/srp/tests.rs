@@ -349,46 +349,51 @@ fn floor_fit_recovers_the_direct_path_from_its_floor_image() {
     // specular image barely moves a PHAT peak (0.1–0.6° here, with the
     // plane wave's near-field bias; the pull in rooms comes from the
     // vertical family against a diffuse field, see `floor_fit`), so what
-    // this checks is that the fit's search finds the exact model's peak:
-    // the direct path and the range.
+    // this checks is that the fit's search finds the exact model's peak from
+    // the plane-wave one: the direct path and the range.
     let array = ArrayGeometry::load("16soundsusb-pioneer").unwrap();
     let height = 0.5;
-    let fit = SrpConfig {
+    let config = SrpConfig {
         floor_fit: true,
         floor_height_m: Some(height),
         floor_reflection: 0.8,
         max_sources: 1,
         ..SrpConfig::default()
     };
-    let plain = SrpConfig { max_sources: 1, ..SrpConfig::default() };
     for (range, elevation_deg, azimuth_deg) in [(5.0, 8.0, 30.0), (3.5, 12.0, -120.0), (2.5, 16.0, 75.0)] {
         let (e, a) = (f64::to_radians(elevation_deg), f64::to_radians(azimuth_deg));
         let d = Vector3::new(e.cos() * a.cos(), e.cos() * a.sin(), e.sin());
         let x = source_and_floor_image(&array, &(d * range), height, 0.8, 11);
-        let pulled = localize(&array, &plain, &x)[0];
-        let fitted = localize(&array, &fit, &x)[0];
-        let (pulled_err, fitted_err) =
-            (deg(&pulled.direction_in_array, &d), deg(&fitted.direction_in_array, &d));
-        assert!(fitted_err < 0.15, "floor fit at {range} m: {fitted_err}° (plane wave {pulled_err}°)");
-        let found_range = 1.0 / fitted.inverse_range_per_m;
-        assert!((found_range - range).abs() < 0.15 * range, "range {found_range} m, truth {range} m");
+        let mut srp = Srp::new(&array, FS, N, &config).unwrap();
+        let mut out = Vec::new();
+        srp.process(&x, &mut out);
+        let plane = out[0].direction_in_array;
+        let fitted = srp.fit_floor(&plane).expect("the image model fits better than the direct path alone");
+        let (plane_err, fitted_err) = (deg(&plane, &d), deg(&fitted.direction, &d));
+        assert!(fitted_err < 0.15, "floor fit at {range} m: {fitted_err}° (plane wave {plane_err}°)");
+        assert!((fitted.range_m - range).abs() < 0.15 * range, "range {} m, truth {range} m", fitted.range_m);
+        let shifted = srp.shift_elevation(&plane, fitted.offset_rad).unwrap();
+        assert!(deg(&shifted, &fitted.direction) < 0.01, "the offset moves the peak onto the fit");
     }
 }
 
 #[test]
 fn floor_fit_leaves_a_source_without_a_floor_image_alone() {
     // Free field: the image model fits no better than the direct path, so
-    // the guard keeps the peak where the ordinary refinement put it.
+    // the guard keeps the plane-wave peak (no fit, or one on the peak).
     let array = ArrayGeometry::load("16soundsusb-pioneer").unwrap();
     let d = Vector3::new(0.6, -0.5, 0.2).normalize();
     let x = spectra(&array, &[d], &[1.0], 5);
-    let fit = SrpConfig { floor_fit: true, max_sources: 1, ..SrpConfig::default() };
-    let mut srp = Srp::new(&array, FS, N, &fit).unwrap();
+    let config = SrpConfig { floor_fit: true, max_sources: 1, ..SrpConfig::default() };
+    let mut srp = Srp::new(&array, FS, N, &config).unwrap();
     let mut out = Vec::new();
+    assert!(srp.fit_floor(&Unit::new_normalize(d)).is_none(), "no frames yet: no fit");
     srp.process(&x, &mut out);
+    let plane = out[0].direction_in_array;
+    if let Some(f) = srp.fit_floor(&plane) {
+        assert!(deg(&f.direction, &plane) < 0.05, "moved {}° off the plane wave", deg(&f.direction, &plane));
+    }
     assert!(srp.take_stats().floor_fit_evaluations > 0, "the fit ran");
-    let plain = localize(&array, &SrpConfig { max_sources: 1, ..SrpConfig::default() }, &x)[0];
-    assert_eq!(out[0].direction_in_array, plain.direction_in_array);
 }
 
 #[test]
@@ -403,6 +408,8 @@ fn floor_fit_settings_are_checked() {
     bad(SrpConfig { floor_height_m: Some(f64::NAN), ..on.clone() }, "srp.floor_height_m");
     bad(SrpConfig { ceiling_height_m: Some(0.2), ..on.clone() }, "srp.ceiling_height_m");
     bad(SrpConfig { floor_fit_min_gain: -0.5, ..on.clone() }, "srp.floor_fit_min_gain");
+    bad(SrpConfig { floor_fit_frames: 0.5, ..on.clone() }, "srp.floor_fit_frames");
+    bad(SrpConfig { floor_fit_every_hops: 0, ..on.clone() }, "srp.floor_fit_every_hops");
     // An array whose mount gives no height (identity) needs floor_height_m.
     let flat = ArrayGeometry::load("respeaker-4").unwrap();
     let e = Srp::new(&flat, FS, N, &on).unwrap_err().to_string();
