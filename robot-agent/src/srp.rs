@@ -398,7 +398,9 @@ impl Srp {
             projected: 0,
             max_step_rad: 0.75 * fine_spacing,
             diffuse,
-            csm: floor.as_ref().map(|_| floor_fit::Csm::new(m, padded_bins, config.floor_fit_frames)),
+            csm: floor
+                .as_ref()
+                .map(|_| floor_fit::Csm::new(m, band.len(), padded_bins, config.floor_fit_frames)),
             floor,
         })
     }

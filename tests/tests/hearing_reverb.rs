@@ -331,7 +331,7 @@ fn floor_fit() -> PipelineConfig {
 
 /// CI subset of the floor-reflection fit (`[srp] floor_fit`): on the
 /// sweep's first four cases (sources 1.7–3.7 m away; reported 3.48° →
-/// 0.45° at the median, 4.08° → 0.84° at most, when measured), the
+/// 0.44° at the median, 4.08° → 0.72° at most, when measured), the
 /// reported DoAs move to the direct path, and without reflections nothing changes (the guard keeps
 /// the plane-wave direction when the floor's image does not fit better).
 /// The sweep: `SOUNDMAP_FLOOR_FIT=1 cargo test -p soundmap-sim --test

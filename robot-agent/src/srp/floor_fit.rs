@@ -68,9 +68,9 @@
 //! ranges 1–12 m) at the track's elevation and 4° and 8° below it (where
 //! the pull puts the direct path), then a coordinate ascent (steps halved
 //! from 1° and 7.5 mm down to 0.1°) from the scans' three best local
-//! maxima; 150–180 model evaluations a fit. One scan at the track's
-//! elevation left a far, low source 6° high; the three scans bring it
-//! within 1.4°.
+//! maxima; 150–180 model evaluations a fit, each on every second bin of
+//! the band. One scan at the track's elevation left a far, low source 6°
+//! high; the three scans bring it within 1.4–2.7°.
 //!
 //! **Guard.** The fit is kept only when its power beats the best the direct
 //! path alone (spherical, a pattern search from the plane-wave peak at the
@@ -85,7 +85,8 @@
 //! coefficient. Measured in `BENCHMARKS.md`, "The floor's reflection,
 //! fitted": the reverberant set's reported DoAs within the issue's figures,
 //! sources within 4 m placed better than the coordinator's model places
-//! them, those 5–6 m away still ~0.2 m high, at ~7× the localizer's CPU.
+//! them, those 5–6 m away still 0.15–0.2 m high, at ~4.5× the localizer's
+//! CPU.
 //! Off by default for those last two.
 
 use nalgebra::{Unit, Vector3};
@@ -94,6 +95,11 @@ use super::phat::CrossCorrelator;
 
 /// Bins processed together.
 const LANES: usize = 8;
+/// The fit keeps every second bin of the band (125 Hz apart at 16 kHz
+/// with 256-sample frames): the image path's phase `ωΔ/c` is then
+/// sampled without ambiguity up to Δ = 2.7 m, far beyond the 1.2 m a
+/// source 1 m away gives, at half the cost of every bin.
+const BIN_STRIDE: usize = 2;
 
 /// Ranges the fit considers (m).
 const MIN_RANGE_M: f64 = 1.0;
@@ -186,7 +192,7 @@ impl FloorFit {
         bins: usize,
     ) -> Self {
         let frame_len = window.len();
-        let padded = bins.div_ceil(LANES) * LANES;
+        let padded = bins.div_ceil(BIN_STRIDE).div_ceil(LANES) * LANES;
         let e: f64 = window.iter().map(|&w| (w as f64).powi(2)).sum();
         let window_ac = (0..frame_len)
             .map(|l| {
@@ -202,7 +208,7 @@ impl FloorFit {
             geometry,
             positions: positions.to_vec(),
             inv_c: 1.0 / c,
-            domega: std::f64::consts::TAU * fs / frame_len as f64,
+            domega: std::f64::consts::TAU * fs / frame_len as f64 * BIN_STRIDE as f64,
             first_bin: lo,
             padded,
             fs,
@@ -446,7 +452,7 @@ impl FloorFit {
                 let tau = (r - rho) * self.inv_c;
                 amp[q] = (paths[q].1 * rho / r.max(1e-3)) as f32;
                 let (s1, c1) = (self.domega * tau).sin_cos();
-                let (s0, c0) = (self.domega * tau * self.first_bin as f64).sin_cos();
+                let (s0, c0) = (self.domega / BIN_STRIDE as f64 * tau * self.first_bin as f64).sin_cos();
                 let (mut re, mut im) = (c0, s0);
                 for l in 0..LANES {
                     pr[q][l] = re as f32;
@@ -512,7 +518,11 @@ impl FloorFit {
 #[derive(Debug)]
 pub struct Csm {
     pairs: Vec<(usize, usize)>,
+    /// Bins kept (every `BIN_STRIDE`-th of the band), padded to `LANES`, and
+    /// the whitened spectra's padded bins per microphone.
     padded: usize,
+    kept: usize,
+    source_padded: usize,
     re: Vec<f32>,
     im: Vec<f32>,
     keep: f32,
@@ -522,13 +532,18 @@ pub struct Csm {
 }
 
 impl Csm {
-    /// For `mics` microphones and `padded` bins, forgetting `1/frames` a frame.
-    pub fn new(mics: usize, padded: usize, frames: f64) -> Self {
+    /// For `mics` microphones and a band of `bins` bins (stored `source_padded`
+    /// per microphone in the whitened spectra), forgetting `1/frames` a frame.
+    pub fn new(mics: usize, bins: usize, source_padded: usize, frames: f64) -> Self {
         let pairs: Vec<(usize, usize)> = (0..mics).flat_map(|i| (i + 1..mics).map(move |j| (i, j))).collect();
+        let kept = bins.div_ceil(BIN_STRIDE);
+        let padded = kept.div_ceil(LANES) * LANES;
         let len = pairs.len() * padded;
         Csm {
             pairs,
             padded,
+            kept,
+            source_padded,
             re: vec![0.0; len],
             im: vec![0.0; len],
             keep: (1.0 - 1.0 / frames.max(1.0)) as f32,
@@ -561,18 +576,17 @@ impl crate::simd::Kernel for Accumulate<'_> {
     #[inline(always)]
     fn run(self) {
         let Accumulate { csm, cc } = self;
-        let (padded, keep) = (csm.padded, csm.keep);
+        let (padded, src, keep) = (csm.padded, csm.source_padded, csm.keep);
         let fresh = 1.0 - keep;
         for (p, &(i, j)) in csm.pairs.iter().enumerate() {
-            let (xri, xii) =
-                (&cc.phat_re[i * padded..(i + 1) * padded], &cc.phat_im[i * padded..(i + 1) * padded]);
-            let (xrj, xij) =
-                (&cc.phat_re[j * padded..(j + 1) * padded], &cc.phat_im[j * padded..(j + 1) * padded]);
+            let (xri, xii) = (&cc.phat_re[i * src..(i + 1) * src], &cc.phat_im[i * src..(i + 1) * src]);
+            let (xrj, xij) = (&cc.phat_re[j * src..(j + 1) * src], &cc.phat_im[j * src..(j + 1) * src]);
             let rr = &mut csm.re[p * padded..(p + 1) * padded];
             let ri = &mut csm.im[p * padded..(p + 1) * padded];
-            for k in 0..padded {
-                rr[k] = keep * rr[k] + fresh * (xri[k] * xrj[k] + xii[k] * xij[k]);
-                ri[k] = keep * ri[k] + fresh * (xii[k] * xrj[k] - xri[k] * xij[k]);
+            for c in 0..csm.kept {
+                let k = c * BIN_STRIDE;
+                rr[c] = keep * rr[c] + fresh * (xri[k] * xrj[k] + xii[k] * xij[k]);
+                ri[c] = keep * ri[c] + fresh * (xii[k] * xrj[k] - xri[k] * xij[k]);
             }
         }
         csm.frames = csm.frames.saturating_add(1);
