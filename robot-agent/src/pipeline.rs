@@ -249,7 +249,8 @@ impl Pipeline {
             });
         }
         let stft = Stft::new(array.channels(), config.frame_len, config.hop_len, config.window)?;
-        let srp = Srp::new(array, fs, config.frame_len, &config.srp)?;
+        let mut srp = Srp::new(array, fs, config.frame_len, &config.srp)?;
+        srp.set_analysis_window(&config.window.coefficients(config.frame_len));
         let hop_s = config.hop_len as f64 / fs as f64;
         let mut tracker = DoaTracker::new(&config.tracker, hop_s, config.srp.max_sources, srp.noise_model())?;
         tracker.set_microphones(&array.positions().map(|p| p.coords).collect::<Vec<_>>());

@@ -678,6 +678,14 @@ impl Srp {
         self.floor.as_ref().map(|f| f.shift_elevation(d, offset_rad))
     }
 
+    /// Tells the floor-reflection fit the analysis window (see
+    /// [`floor_fit::FloorFit::set_window`]).
+    pub fn set_analysis_window(&mut self, window: &[f32]) {
+        if let Some(f) = self.floor.as_mut() {
+            f.set_window(window);
+        }
+    }
+
     /// Whether the floor-reflection fit is on.
     pub fn floor_fit_on(&self) -> bool {
         self.floor.is_some()

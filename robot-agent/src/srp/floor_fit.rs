@@ -86,8 +86,7 @@
 //! fitted": the reverberant set's reported DoAs within the issue's figures,
 //! sources within 4 m placed better than the coordinator's model places
 //! them, those 5–6 m away still 0.15–0.2 m high, at ~4.5× the localizer's
-//! CPU.
-//! Off by default for those last two.
+//! CPU. Off by default for those last two.
 
 use nalgebra::{Unit, Vector3};
 
@@ -119,6 +118,7 @@ const SCAN_DROPS_RAD: [f64; 3] =
     [0.0, 4.0 * std::f64::consts::PI / 180.0, 8.0 * std::f64::consts::PI / 180.0];
 /// Local maxima of the scans the ascent starts from.
 const STARTS: usize = 3;
+
 /// What the fit knows about the room.
 #[derive(Clone, Debug, PartialEq)]
 pub struct FloorGeometry {
@@ -154,6 +154,8 @@ pub struct FloorFit {
     geometry: FloorGeometry,
     positions: Vec<Vector3<f64>>,
     inv_c: f64,
+    /// Spacing of the kept bins (rad/s: `BIN_STRIDE` FFT bins) and the
+    /// band's first FFT bin.
     domega: f64,
     first_bin: usize,
     padded: usize,
@@ -171,7 +173,8 @@ pub struct FloorFit {
     pub(super) arch: pulp::Arch,
 }
 
-/// Floor-frame coordinates of the candidate: azimuth, elevation (rad), range (m).
+/// A candidate source at the fit's azimuth: elevation above the floor
+/// (rad) and range (m).
 #[derive(Clone, Copy, Debug)]
 struct Candidate {
     el: f64,
@@ -193,13 +196,7 @@ impl FloorFit {
     ) -> Self {
         let frame_len = window.len();
         let padded = bins.div_ceil(BIN_STRIDE).div_ceil(LANES) * LANES;
-        let e: f64 = window.iter().map(|&w| (w as f64).powi(2)).sum();
-        let window_ac = (0..frame_len)
-            .map(|l| {
-                (0..frame_len - l).map(|n| window[n] as f64 * window[n + l] as f64).sum::<f64>()
-                    / e.max(1e-30)
-            })
-            .collect();
+        let window_ac = window_autocorrelation(window);
         let up = geometry.up.into_inner();
         let seed = if up.x.abs() < 0.9 { Vector3::x() } else { Vector3::y() };
         let e1 = (seed - up * up.dot(&seed)).normalize();
@@ -220,6 +217,12 @@ impl FloorFit {
             evaluations: 0,
             arch: pulp::Arch::new(),
         }
+    }
+
+    /// Takes the analysis window's coefficients (the images' overlap with
+    /// the direct sound in a frame follows from them; Hann until told).
+    pub fn set_window(&mut self, window: &[f32]) {
+        self.window_ac = window_autocorrelation(window);
     }
 
     /// The geometry the fit assumes.
@@ -509,6 +512,16 @@ impl FloorFit {
         }
         2.0 * acc.iter().map(|&v| v as f64).sum::<f64>()
     }
+}
+
+/// The normalized autocorrelation of `window` at every lag (samples).
+fn window_autocorrelation(window: &[f32]) -> Vec<f64> {
+    let e: f64 = window.iter().map(|&w| (w as f64).powi(2)).sum();
+    (0..window.len())
+        .map(|l| {
+            (0..window.len() - l).map(|n| window[n] as f64 * window[n + l] as f64).sum::<f64>() / e.max(1e-30)
+        })
+        .collect()
 }
 
 /// The whitened cross-spectra of every microphone pair, averaged over the
