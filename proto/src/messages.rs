@@ -22,6 +22,8 @@ pub const MAX_TEXT_LEN: usize = 256;
 pub const MAX_SIGNATURE_BANDS: usize = 64;
 /// Accepted range of a signature value, dB.
 pub const SIGNATURE_DB_RANGE: (f32, f32) = (-200.0, 200.0);
+/// Accepted range of a DoA's floor-fit range, m (0 on the wire: none).
+pub const FLOOR_FIT_RANGE_M: (f64, f64) = (0.1, 1000.0);
 
 /// Accepted range of a DoA's 1-σ angular uncertainty, radians (0 on the wire
 /// means unknown). Below 1e-4 rad (0.006°) no microphone array resolves a
@@ -139,6 +141,9 @@ pub struct TrackedDoa {
     /// PHAT coherence of the peaks that fed the track, in (0, 1], when the
     /// robot knows it (see the proto's `TrackedDoa.coherence`).
     pub coherence: Option<f64>,
+    /// Range (m) at which the robot fitted the elevation with the floor's
+    /// reflection, when it did (see the proto's `TrackedDoa.floor_fit_range_m`).
+    pub floor_fit_range_m: Option<f64>,
 }
 
 /// A robot's DoAs at one instant with its pose at that instant.
@@ -459,6 +464,14 @@ impl TrackedDoa {
                 Problem::OutOfRange { value: coherence, range: "0 (unknown) or (0, 1]" },
             ));
         }
+        let range = finite(d.floor_fit_range_m, &format!("{field}.floor_fit_range_m"))?;
+        let (lo, hi) = FLOOR_FIT_RANGE_M;
+        if !(range == 0.0 || (lo..=hi).contains(&range)) {
+            return Err(ValidationError::new(
+                format!("{field}.floor_fit_range_m"),
+                Problem::OutOfRange { value: range, range: "0 (none) or [0.1, 1000] m" },
+            ));
+        }
         let field = format!("{field}.signature_db");
         let (lo, hi) = SIGNATURE_DB_RANGE;
         for (i, &v) in d.signature_db.iter().enumerate() {
@@ -479,6 +492,7 @@ impl TrackedDoa {
             angular_sigma_rad: (sigma > 0.0).then_some(sigma),
             signature: (!d.signature_db.is_empty()).then(|| d.signature_db.clone()),
             coherence: (coherence > 0.0).then_some(coherence),
+            floor_fit_range_m: (range > 0.0).then_some(range),
         })
     }
 
@@ -491,6 +505,7 @@ impl TrackedDoa {
             angular_sigma_rad: self.angular_sigma_rad.unwrap_or(0.0),
             signature_db: self.signature.clone().unwrap_or_default(),
             coherence: self.coherence.unwrap_or(0.0),
+            floor_fit_range_m: self.floor_fit_range_m.unwrap_or(0.0),
         }
     }
 }
@@ -731,6 +746,7 @@ mod tests {
                 angular_sigma_rad: Some(0.05),
                 signature: Some(vec![-10.0, 3.5, 0.0]),
                 coherence: Some(0.3),
+                floor_fit_range_m: None,
             }],
         }
     }
@@ -750,6 +766,10 @@ mod tests {
         let mut unknown = o.clone();
         unknown.doas[0].coherence = None;
         assert_eq!(Observation::from_wire(&unknown.to_wire(), &limits()).unwrap().doas[0].coherence, None);
+        let mut fitted = o.clone();
+        fitted.doas[0].floor_fit_range_m = Some(4.5);
+        let back = Observation::from_wire(&fitted.to_wire(), &limits()).unwrap();
+        assert_eq!(back.doas[0].floor_fit_range_m, Some(4.5));
     }
 
     #[test]
@@ -762,6 +782,15 @@ mod tests {
             let mut w = observation().to_wire();
             w.doas[0].coherence = bad;
             assert_eq!(Observation::from_wire(&w, &l).unwrap_err().field, "observation.doas[0].coherence");
+        }
+        for bad in [f64::NAN, f64::INFINITY, -1.0, 0.05, 2000.0] {
+            let mut w = observation().to_wire();
+            w.doas[0].floor_fit_range_m = bad;
+            assert_eq!(
+                Observation::from_wire(&w, &l).unwrap_err().field,
+                "observation.doas[0].floor_fit_range_m",
+                "{bad}"
+            );
         }
         let mut w = observation().to_wire();
         w.map_from_base = None;
@@ -937,6 +966,7 @@ mod tests {
             angular_sigma_rad: None,
             signature: bands.map(|b| vec![1.0; b]),
             coherence: None,
+            floor_fit_range_m: None,
         };
         let with = |doas: Vec<TrackedDoa>| Observation { doas, ..observation() };
         assert!(with(vec![doa(1, Some(3)), doa(2, None)]).check_against(&h).is_ok());

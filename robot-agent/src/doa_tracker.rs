@@ -296,6 +296,7 @@ impl TrackedDirection {
             signature: None,
             coherence: (self.coherence.is_finite() && self.coherence > 0.0)
                 .then_some(self.coherence.min(1.0)),
+            floor_fit_range_m: None,
         }
     }
 }

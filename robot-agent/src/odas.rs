@@ -196,6 +196,7 @@ impl SstFrame {
                 angular_sigma_rad: Some(PRIOR_SIGMA_DEG.to_radians()),
                 signature: None,
                 coherence: None,
+                floor_fit_range_m: None,
             });
         }
         Ok(OdasFrame { time_stamp: self.time_stamp, stamp: timing.stamp(self.time_stamp), doas })

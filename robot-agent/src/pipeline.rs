@@ -149,6 +149,10 @@ pub struct FrameResult {
     /// Signatures of the reported tracks, dB (see [`crate::signature`]): B
     /// values per entry of `reported`, in that order.
     pub signatures_db: Vec<f32>,
+    /// With the floor fit: per entry of `reported`, the range (m) its
+    /// elevation was fitted at, 0 where it has no fit yet (see
+    /// [`soundmap_proto::TrackedDoa::floor_fit_range_m`]); empty without it.
+    pub floor_fit_ranges_m: Vec<f64>,
 }
 
 impl FrameResult {
@@ -165,6 +169,7 @@ impl FrameResult {
                 let mut d = self.tracks[t].to_doa(0.0);
                 d.signature =
                     self.signatures_db.get(i * b..(i + 1) * b).filter(|_| b > 0).map(<[f32]>::to_vec);
+                d.floor_fit_range_m = self.floor_fit_ranges_m.get(i).copied().filter(|&r| r > 0.0);
                 d
             })
             .collect()
@@ -188,8 +193,12 @@ pub fn aperture_scale(aperture_m: f64, full_m: f64) -> f64 {
 #[derive(Clone, Copy, Debug)]
 struct FloorOffset {
     track_id: u64,
-    /// Elevation offset applied to what is reported (rad), smoothed.
+    /// Elevation offset applied to what is reported (rad), and the inverse
+    /// of the range it was fitted at (1/m), both smoothed alike: along the
+    /// fit's ridge of one image path, sin e + h/ρ stays nearly constant, so
+    /// the smoothed pair stays on it.
     offset_rad: f64,
+    inverse_range: f64,
 }
 
 /// STFT → SRP-PHAT → tracker for one array.
@@ -271,6 +280,7 @@ impl Pipeline {
                 reported: Vec::with_capacity(config.tracker.max_tracks.max(k)),
                 signature_bands: bands,
                 signatures_db: Vec::with_capacity(k * bands),
+                floor_fit_ranges_m: Vec::with_capacity(config.tracker.max_tracks.max(k)),
             },
             stamp_offset_ns: (offset_samples * 1e9 / fs as f64).round() as i64,
             doa_sigma_floor_rad: floor.to_radians()
@@ -405,6 +415,7 @@ impl Pipeline {
             r.tracks.clear();
             r.reported.clear();
             r.signatures_db.clear();
+            r.floor_fit_ranges_m.clear();
         }
         &self.result
     }
@@ -424,23 +435,32 @@ impl Pipeline {
                 let Some(fit) = self.srp.fit_floor(&d) else { continue };
                 let room = self.floor_offsets.len() < self.floor_offsets.capacity();
                 match self.floor_offsets.iter_mut().find(|f| f.track_id == id) {
-                    Some(f) => f.offset_rad = 0.5 * (f.offset_rad + fit.offset_rad),
-                    None if room => {
-                        self.floor_offsets.push(FloorOffset { track_id: id, offset_rad: fit.offset_rad })
+                    Some(f) => {
+                        f.offset_rad = 0.5 * (f.offset_rad + fit.offset_rad);
+                        f.inverse_range = 0.5 * (f.inverse_range + 1.0 / fit.range_m);
                     }
+                    None if room => self.floor_offsets.push(FloorOffset {
+                        track_id: id,
+                        offset_rad: fit.offset_rad,
+                        inverse_range: 1.0 / fit.range_m,
+                    }),
                     None => {}
                 }
             }
             let tracks = &r.tracks;
             self.floor_offsets.retain(|f| tracks.iter().any(|t| t.track_id == f.track_id));
         }
+        r.floor_fit_ranges_m.clear();
         for &i in &r.reported {
             let t = &mut r.tracks[i];
+            let mut range = 0.0;
             if let Some(f) = self.floor_offsets.iter().find(|f| f.track_id == t.track_id)
                 && let Some(d) = self.srp.shift_elevation(&t.direction_in_array, f.offset_rad)
             {
                 t.direction_in_array = d;
+                range = 1.0 / f.inverse_range;
             }
+            r.floor_fit_ranges_m.push(range);
         }
     }
 

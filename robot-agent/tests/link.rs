@@ -213,6 +213,7 @@ fn observation(with_doa: bool) -> Observation {
                 angular_sigma_rad: None,
                 signature: None,
                 coherence: None,
+                floor_fit_range_m: None,
             }]
         } else {
             vec![]

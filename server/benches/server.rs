@@ -197,6 +197,7 @@ fn folded(rays: &[Ray], ceiling_m: Option<f64>) -> Vec<Ray> {
                 ceiling_m,
                 vertical_spread,
                 upper_branch: true,
+                fitted_range_m: None,
             }),
             ..*r
         })
@@ -441,6 +442,7 @@ fn heard_fold() -> FloorFold {
         ceiling_m: None,
         vertical_spread: None,
         upper_branch: true,
+        fitted_range_m: None,
     }
 }
 
@@ -463,6 +465,7 @@ fn observation(i: usize, n: usize, seq: u64, stamp: Stamp, fold: Option<&FloorFo
             angular_sigma_rad: Some(0.05),
             signature: None,
             coherence: None,
+            floor_fit_range_m: None,
         }],
     };
     wire::RobotMessage { msg: Some(Up::Observation(o.to_wire())) }
@@ -710,6 +713,7 @@ fn bench_sources(quick: bool) {
                         angular_sigma_rad: Some(1f64.to_radians()),
                         signature: None,
                         coherence: None,
+                        floor_fit_range_m: None,
                     }
                 })
                 .collect();

@@ -225,6 +225,34 @@
 //! fold (an ODAS bridge), see the two branches differently and are left to
 //! the fit.
 //!
+//! # A robot's own floor fit
+//!
+//! A soundmap agent with `[pipeline.srp] floor_fit` fits the floor's image
+//! into its steering model and sends direct-path elevations
+//! (`ArrayDescription.direct_path_elevations`): such rays get no pull. What
+//! the fit resolves sharply is the image's extra path Δ = |s′| − |s|, not
+//! the range: with the array h above the floor, a source at range r and
+//! elevation e has Δ = √(r² + 4hr sin e + 4h²) − r ≈ 2h sin e + 2h²/r, so
+//! beyond a few metres many (e, r) pairs share one Δ (sin e + h/r nearly
+//! constant) and the array's curvature and slowness barely choose among
+//! them. Measured (distance sweep, 5 m, RT60 0.5 s): the fits' ranges
+//! spread over 5–12 m (median 9 m) and their elevations 0–3° high (median
+//! +2.2°), while the same fits read at the true range with their own Δ
+//! were within −0.4 to +0.1° (10th–90th percentile).
+//!
+//! So each such DoA also carries the range it was fitted at
+//! (`TrackedDoa.floor_fit_range_m`, ρ_f), and the model here
+//! ([`FloorFold::fitted_range_m`]) predicts, for a candidate source, the
+//! elevation the robot reports: its Δ from the candidate's own range and
+//! height, then the elevation of a source at ρ_f with that Δ,
+//! `sin e = (2Δρ_f + Δ² − 4h²)/(4hρ_f)` (exact, from (r + Δ)² = r² + 4hr sin e + 4h²),
+//! with its gradient in closed form. At ρ_f equal to the candidate's range
+//! it is the direct path. The coordinator's range comes from the other
+//! robots' rays, so the elevation the fit could not pin down is pinned by
+//! the triangulation. Measured in `BENCHMARKS.md`, "The floor's reflection,
+//! fitted": with it the distance sweep's height errors are within ±0.04 m
+//! at 2–6 m (the fit's own elevations alone: +0.18 m at 5 m).
+//!
 //! Assumptions, stated: the array is level (its plane parallel to the floor), the
 //! floor is the plane `doa.base_height_m` below the robot's base frame, and the
 //! floor reflects every frequency with the same R. An array is treated as
@@ -797,6 +825,12 @@ pub struct FloorFold {
     /// on the upper side of their plane (`doa.upper_branch`; see the module
     /// docs, "The fold's two branches").
     pub upper_branch: bool,
+    /// The range (m) at which the robot fitted this DoA's elevation with
+    /// the floor's image (proto `TrackedDoa.floor_fit_range_m`): the
+    /// elevation is then read along that fit's image path at the source's
+    /// range (see the module docs, "A robot's own floor fit"), and the
+    /// reflection's pull is not modelled. `None`: as `reflection` says.
+    pub fitted_range_m: Option<f64>,
 }
 
 /// Most reflections an image of the vertical family may have been through.
@@ -902,6 +936,27 @@ impl FloorFold {
         // (the ceiling image then passes below the source), so the model stays
         // continuous there instead of switching to the floor image alone.
         let ceiling = self.ceiling_m.filter(|&h| h > h_a);
+        if let Some(fitted) = self.fitted_range_m.filter(|&r| r > 0.0 && h_a > 0.0) {
+            // The robot's fit: the floor image's extra path Δ for this
+            // source, read back as the elevation of a source at the fitted
+            // range with the same Δ (module docs, "A robot's own floor fit").
+            let image = (r_direct * r_direct + 4.0 * h_a * vz + 4.0 * h_a * h_a).max(0.0).sqrt();
+            let path = image - r_direct;
+            let raw = (2.0 * path * fitted + path * path - 4.0 * h_a * h_a) / (4.0 * h_a * fitted);
+            let sin_e = raw.clamp(-1.0, 1.0);
+            let c = (1.0 - sin_e * sin_e).sqrt();
+            let gradient = gradient.then(|| {
+                if raw.abs() >= 1.0 || c < 1e-12 || image < 1e-12 {
+                    return [0.0, 0.0];
+                }
+                // ∂c/∂Δ = −(sin e/c)·(ρ_f + Δ)/(2h ρ_f); ∂Δ/∂ρ and ∂Δ/∂v_z.
+                let dc_dpath = -sin_e / c * (fitted + path) / (2.0 * h_a * fitted);
+                let d_rho = rho / image - rho / r_direct;
+                let d_z = (vz + 2.0 * h_a) / image - vz / r_direct;
+                [dc_dpath * d_rho, dc_dpath * d_z]
+            });
+            return Radial { c, gradient };
+        }
         if !(h_a > 0.0 && h_s > 0.0 && self.reflection > 0.0) {
             return Radial { c: c_direct, gradient: gradient.then_some(d_direct) };
         }
@@ -989,6 +1044,7 @@ pub(crate) fn three_mic_fold(reflection: f64, vertical_spread: Option<f64>) -> F
         ceiling_m: None,
         vertical_spread,
         upper_branch: true,
+        fitted_range_m: None,
     }
 }
 
@@ -1123,6 +1179,7 @@ mod tests {
             ceiling_m: None,
             vertical_spread: None,
             upper_branch: true,
+            fitted_range_m: None,
         };
         let origin = Point3::new(0.0, 0.0, 0.5125);
         let bias = |rho: f64| {
@@ -1172,6 +1229,7 @@ mod tests {
             ceiling_m: None,
             vertical_spread: None,
             upper_branch: true,
+            fitted_range_m: None,
         };
         let room = FloorFold { ceiling_m: Some(3.0), ..floor };
         // A ceiling far away changes nothing that matters.
@@ -1214,6 +1272,7 @@ mod tests {
             ceiling_m: None,
             vertical_spread: None,
             upper_branch: true,
+            fitted_range_m: None,
         };
         let talker = FloorFold { lobe: sixteen.lobe(Some((300.0, 3400.0))), ..floor };
         let folds = [
@@ -1222,6 +1281,7 @@ mod tests {
             FloorFold { ceiling_m: Some(3.0), ..floor },
             FloorFold { ceiling_m: Some(3.0), ..talker },
             FloorFold { ceiling_m: Some(2.5), reflection: 0.8, ..talker },
+            FloorFold { fitted_range_m: Some(9.0), ..floor },
         ];
         let origin = Point3::new(0.3, -0.2, 0.51);
         let mut checked = 0;
@@ -1255,7 +1315,34 @@ mod tests {
                 }
             }
         }
-        assert_eq!(checked, 5 * 7 * 3);
+        assert_eq!(checked, 6 * 7 * 3);
+    }
+
+    #[test]
+    fn a_robots_floor_fit_is_read_at_the_sources_range() {
+        let fit = |range: f64| FloorFold { fitted_range_m: Some(range), ..three_mic_fold(0.6, None) };
+        let origin = Point3::new(0.0, 0.0, 0.5);
+        let source = Point3::new(3.0, 4.0, 1.2);
+        let r = (source - origin).norm();
+        let direct = (source - origin).normalize();
+        // Fitted at the source's own range: the direct path, whatever R says.
+        let at = fit(r).measured_direction(&origin, &source).unwrap();
+        assert!((at.into_inner() - direct).norm() < 1e-12, "{at:?}");
+        // Fitted 12 m away (the range poorly resolved): the elevation a
+        // source 12 m away with the same floor-image path has, higher.
+        let far = fit(12.0).measured_direction(&origin, &source).unwrap();
+        let h = 0.5;
+        let path = (r * r + 4.0 * h * 0.7 + 4.0 * h * h).sqrt() - r;
+        let rf = 12.0;
+        let image_path = |sin_e: f64| (rf * rf + 4.0 * h * rf * sin_e + 4.0 * h * h).sqrt() - rf;
+        assert!((image_path(far.z) - path).abs() < 1e-12, "{} against {path}", image_path(far.z));
+        assert!(far.z > direct.z + 0.02, "{far:?}");
+        // Same azimuth; farther fits sit higher (sin e + h/ρ ≈ constant).
+        assert!((far.y.atan2(far.x) - direct.y.atan2(direct.x)).abs() < 1e-12);
+        assert!(((far.z + h / rf) - (direct.z + h / r)).abs() < 0.01, "{far:?}");
+        // Without a fitted range, the pull as before.
+        let pulled = three_mic_fold(0.6, None).measured_direction(&origin, &source).unwrap();
+        assert_ne!(pulled, at);
     }
 
     #[test]

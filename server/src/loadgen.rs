@@ -95,6 +95,7 @@ pub fn observation(spec: &RobotSpec, sequence: u64, stamp: Stamp) -> wire::Robot
             angular_sigma_rad: Some(0.05),
             signature: None,
             coherence: None,
+            floor_fit_range_m: None,
         }],
     };
     wire::RobotMessage { msg: Some(Up::Observation(obs.to_wire())) }

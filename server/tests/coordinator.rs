@@ -68,6 +68,7 @@ fn observation(sequence: u64, stamp: Stamp, base: Point3<f64>, source: &Point3<f
             angular_sigma_rad: Some(1f64.to_radians()),
             signature: None,
             coherence: None,
+            floor_fit_range_m: None,
         }],
     }
 }
@@ -321,6 +322,7 @@ fn octagon_fold(reflection: f64) -> soundmap_server::floor_image::FloorFold {
         ceiling_m: None,
         vertical_spread: None,
         upper_branch: true,
+        fitted_range_m: None,
     }
 }
 
@@ -349,6 +351,23 @@ fn direct_path_elevations_are_folded_without_a_pull() {
     let undeclared = folded_published(config, Some(OCTAGON_BAND), &direct, None, &source, false).0;
     assert!((declared - source).norm() < 0.02, "declared: {declared} vs {source}");
     assert!(source.z - undeclared.z > 0.1, "undeclared: {undeclared} is pulled down from {source}");
+}
+
+/// A robot's floor fit that resolved the image path but not the range
+/// (fitted 12 m away for a source 5 m away) reports a direction too high;
+/// sent with its `floor_fit_range_m`, the coordinator reads it along that
+/// image path at its own range and the rays meet at the source. Without
+/// the range, the same DoAs meet above it.
+#[test]
+fn a_floor_fit_is_read_along_its_image_path_at_the_coordinators_range() {
+    let source = Point3::new(0.0, 0.0, 1.2);
+    let config = CoordinatorConfig::default();
+    let fitted = soundmap_server::floor_image::FloorFold { fitted_range_m: Some(12.0), ..octagon_fold(0.0) };
+    let band = Some(OCTAGON_BAND);
+    let read = fitted_published(config.clone(), band, &fitted, None, &source, true, Some(12.0)).0;
+    let unread = fitted_published(config, band, &fitted, None, &source, true, None).0;
+    assert!((read - source).norm() < 0.02, "with the range: {read} vs {source}");
+    assert!(unread.z - source.z > 0.1, "without: {unread} is above {source}");
 }
 
 /// With `doa.reverberant_pull` on, a DoA's coherence sets the floor image's
@@ -421,6 +440,19 @@ fn folded_published(
     source: &Point3<f64>,
     direct_path_elevations: bool,
 ) -> (Point3<f64>, nalgebra::Matrix3<f64>) {
+    fitted_published(config, band, fold, coherence, source, direct_path_elevations, None)
+}
+
+/// [`folded_published`] with each DoA's `floor_fit_range_m`.
+fn fitted_published(
+    config: CoordinatorConfig,
+    band: Option<[f64; 2]>,
+    fold: &soundmap_server::floor_image::FloorFold,
+    coherence: Option<f64>,
+    source: &Point3<f64>,
+    direct_path_elevations: bool,
+    floor_fit_range_m: Option<f64>,
+) -> (Point3<f64>, nalgebra::Matrix3<f64>) {
     let mut c = Coordinator::new(config).unwrap();
     let planar = ArrayInfo {
         microphone_count: 8,
@@ -440,6 +472,7 @@ fn folded_published(
         let mut obs = observation(1, T0.plus_ns((50 + k as i64) * MS), base, source);
         obs.doas[0].direction_in_array = fold.measured_direction(&array_in_map(base), source).unwrap();
         obs.doas[0].coherence = coherence;
+        obs.doas[0].floor_fit_range_m = floor_fit_range_m;
         c.observe(now, *conn, obs).unwrap();
     }
     let e = c.estimate(now).pop().expect("two aligned robots");

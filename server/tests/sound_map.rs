@@ -82,6 +82,7 @@ fn observe_with(
                 angular_sigma_rad: Some(1f64.to_radians()),
                 signature: signature(track_id),
                 coherence: None,
+                floor_fit_range_m: None,
             }
         })
         .collect();

@@ -18,7 +18,8 @@
 //! `SOUNDMAP_DISTANCE_CEILING` (m): the ceiling height the coordinator's
 //! floor-image model is told (default: the room's, 3 m; 100 leaves the
 //! ceiling out of the model). `SOUNDMAP_DISTANCE_FLOOR_FIT=1` turns on the
-//! agents' experimental floor-reflection fit (`[agent.srp] floor_fit`).
+//! agents' experimental floor-reflection fit (`[agent.srp] floor_fit`);
+//! `SOUNDMAP_DISTANCE_ONLY=5` runs one distance (m) of the sweep.
 
 use soundmap_sim::report::derived::Derived;
 use soundmap_sim::report::{RunRecord, Summary};
@@ -189,7 +190,10 @@ fn sweep_over_distance() {
         source.signal, source.height_m, source.ceiling_m
     );
     let mut missed = Vec::new();
-    for d in [2.0, 3.0, 4.0, 5.0, 6.0] {
+    let only: Option<f64> = std::env::var("SOUNDMAP_DISTANCE_ONLY")
+        .ok()
+        .map(|v| v.parse().unwrap_or_else(|e| panic!("SOUNDMAP_DISTANCE_ONLY: {v}: {e}")));
+    for d in [2.0, 3.0, 4.0, 5.0, 6.0].into_iter().filter(|d| only.is_none_or(|o| o == *d)) {
         for seed in 1..=3 {
             let f = measure(d, seed, &source);
             row(d, seed, &f);

@@ -19,7 +19,7 @@
 //! (`cargo test -p soundmap-sim --test hearing_reverb -- --ignored --nocapture`)
 //! covers five presets, RT60 0.4–0.8 s and 12 cases per preset and RT60.
 
-use nalgebra::{Point3, Rotation3, Vector3};
+use nalgebra::{Point3, Rotation3, Unit, Vector3};
 use rand::{RngExt, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use rand_distr::StandardNormal;
@@ -160,6 +160,27 @@ enum Output {
     /// The DoA the agent would send: its first reported track (confirmed,
     /// the most active), in the frames that have one.
     Reported,
+    /// With the floor fit: that DoA read along its fit's image path at the
+    /// source's true range, as the coordinator reads it at its own range
+    /// (proto `TrackedDoa.floor_fit_range_m`); the reported DoA where the
+    /// track has no fit yet.
+    AtTrueRange,
+}
+
+/// `d` (array frame), fitted by the agent's floor fit at `fitted_m`, read at
+/// `case`'s true range: the floor image's extra path Δ of a source along
+/// `d` at the fitted range, and the elevation e of the source at the true
+/// range ρ with the same Δ, sin e = (2Δρ + Δ² − 4h²)/(4hρ).
+fn at_true_range(d: &Vector3<f64>, fitted_m: f64, case: &Case) -> Vector3<f64> {
+    let m = case.rotation() * d;
+    let h = case.array_at.z;
+    let (rf, rho) = (fitted_m, (case.source - case.array_at).norm());
+    let path = (rf * rf + 4.0 * h * rf * m.z + 4.0 * h * h).sqrt() - rf;
+    let sin_e = ((2.0 * path * rho + path * path - 4.0 * h * h) / (4.0 * h * rho)).clamp(-1.0, 1.0);
+    let horizontal = m.x.hypot(m.y).max(1e-12);
+    let cos_e = (1.0 - sin_e * sin_e).sqrt();
+    let read = Vector3::new(m.x / horizontal * cos_e, m.y / horizontal * cos_e, sin_e);
+    case.rotation().inverse() * read
 }
 
 /// The strongest potential's direction (array frame) in every frame after
@@ -200,6 +221,13 @@ fn output_directions(
         let d = match output {
             Output::Strongest => r.potentials.first().map(|p| p.direction_in_array),
             Output::Reported => r.reported.first().map(|&i| r.tracks[i].direction_in_array),
+            Output::AtTrueRange => r.reported.first().map(|&i| {
+                let d = r.tracks[i].direction_in_array;
+                match r.floor_fit_ranges_m.first().copied().filter(|&f| f > 0.0) {
+                    Some(f) => Unit::new_normalize(at_true_range(&d, f, case)),
+                    None => d,
+                }
+            }),
         };
         if t >= SKIP_S
             && let Some(d) = d
@@ -345,9 +373,11 @@ fn floor_fit_in_reverberant_rooms() {
         output_set(config, "16soundsusb-pioneer", 0.65, 4, reflections, 1000, Output::Reported)
     };
     let (plane, fitted) = (set(&default, true), set(&fit, true));
+    let read = output_set(&fit, "16soundsusb-pioneer", 0.65, 4, true, 1000, Output::AtTrueRange);
     let (dry_plane, dry_fitted) = (set(&default, false), set(&fit, false));
     print_row("pioneer, reported", 0.65, true, &plane);
     print_row("pioneer, reported, floor fit", 0.65, true, &fitted);
+    print_row("pioneer, fit at true range", 0.65, true, &read);
     print_row("pioneer, reported", 0.65, false, &dry_plane);
     print_row("pioneer, reported, floor fit", 0.65, false, &dry_fitted);
     assert!(
@@ -355,6 +385,9 @@ fn floor_fit_in_reverberant_rooms() {
         "floor fit {fitted:?}, plane wave {plane:?}"
     );
     assert!((dry_fitted.max - dry_plane.max).abs() < 0.05, "{dry_fitted:?} against {dry_plane:?}");
+    // Read at the true range (as the coordinator reads it at its own), no
+    // worse than as reported.
+    assert!(read.max <= fitted.max + 0.05 && read.median < 0.3 * plane.median, "{read:?} against {fitted:?}");
 }
 
 /// The near-field refinement against the plane-wave fit on the sweep's
@@ -619,6 +652,7 @@ fn modelled_direction(pattern: &ArrayPattern, case: &Case) -> Vector3<f64> {
         ceiling_m: Some(case.size.z),
         vertical_spread: None,
         upper_branch: true,
+        fitted_range_m: None,
     };
     case.rotation().inverse() * fold.measured_direction(&case.array_at, &case.source).unwrap().into_inner()
 }
@@ -718,7 +752,12 @@ fn reported_sweep() {
         let array = ArrayGeometry::load(preset).unwrap();
         let pattern = coordinator_pattern(&array, &config);
         for (rt60, reflections) in [(0.4, true), (0.65, true), (0.8, true), (0.65, false)] {
-            for output in [Output::Strongest, Output::Reported] {
+            let outputs: &[Output] = if config.srp.floor_fit {
+                &[Output::Strongest, Output::Reported, Output::AtTrueRange]
+            } else {
+                &[Output::Strongest, Output::Reported]
+            };
+            for &output in outputs {
                 let mut parts: [Vec<f64>; 5] = Default::default();
                 for seed in 1000..1012 {
                     let case = Case::draw(rt60, seed);

@@ -59,6 +59,7 @@ mod tests {
             angular_sigma_rad: None,
             signature: None,
             coherence: None,
+            floor_fit_range_m: None,
         }
     }
 

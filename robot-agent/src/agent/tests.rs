@@ -33,6 +33,7 @@ fn doa(sigma: Option<f64>) -> TrackedDoa {
         angular_sigma_rad: sigma,
         signature: None,
         coherence: None,
+        floor_fit_range_m: None,
     }
 }
 

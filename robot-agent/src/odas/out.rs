@@ -229,6 +229,7 @@ mod tests {
             angular_sigma_rad: Some(0.01),
             signature: None,
             coherence: None,
+            floor_fit_range_m: None,
         }
     }
 

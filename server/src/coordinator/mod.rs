@@ -352,6 +352,9 @@ impl Coordinator {
                     ceiling_m,
                     vertical_spread: elevation_noise.then(|| p.vertical_spread()),
                     upper_branch,
+                    // Its elevation read along the robot's fit at the
+                    // coordinator's range (see floor_image, "A robot's own floor fit").
+                    fitted_range_m: d.floor_fit_range_m.filter(|_| direct_path),
                 });
                 let ray = Ray {
                     fold,

@@ -174,6 +174,7 @@ pub fn observation_of(
             angular_sigma_rad: Some(sigma_rad),
             signature: None,
             coherence: None,
+            floor_fit_range_m: None,
         }],
     }
     .to_wire()
