@@ -438,6 +438,21 @@ impl Hello {
     }
 }
 
+/// A wire value where 0 means unknown (`None`) and anything else must be
+/// finite and within `[lo, hi]` (`range` says so in the error).
+fn unknown_or_within(
+    value: f64,
+    field: &str,
+    (lo, hi): (f64, f64),
+    range: &'static str,
+) -> Result<Option<f64>, ValidationError> {
+    let v = finite(value, field)?;
+    if !(v == 0.0 || (lo..=hi).contains(&v)) {
+        return Err(ValidationError::new(field.to_string(), Problem::OutOfRange { value: v, range }));
+    }
+    Ok((v > 0.0).then_some(v))
+}
+
 impl TrackedDoa {
     fn from_wire(d: &wire::TrackedDoa, field: &str, limits: &Limits) -> Result<Self, ValidationError> {
         let direction_in_array =
@@ -449,29 +464,24 @@ impl TrackedDoa {
                 Problem::OutOfRange { value: activity, range: "[0, 1]" },
             ));
         }
-        let sigma = finite(d.angular_sigma_rad, &format!("{field}.angular_sigma_rad"))?;
-        let (lo, hi) = ANGULAR_SIGMA_RANGE_RAD;
-        if !(sigma == 0.0 || (lo..=hi).contains(&sigma)) {
-            return Err(ValidationError::new(
-                format!("{field}.angular_sigma_rad"),
-                Problem::OutOfRange { value: sigma, range: "0 (unknown) or [1e-4, π] rad" },
-            ));
-        }
-        let coherence = finite(d.coherence, &format!("{field}.coherence"))?;
-        if !(0.0..=1.0).contains(&coherence) {
-            return Err(ValidationError::new(
-                format!("{field}.coherence"),
-                Problem::OutOfRange { value: coherence, range: "0 (unknown) or (0, 1]" },
-            ));
-        }
-        let range = finite(d.floor_fit_range_m, &format!("{field}.floor_fit_range_m"))?;
-        let (lo, hi) = FLOOR_FIT_RANGE_M;
-        if !(range == 0.0 || (lo..=hi).contains(&range)) {
-            return Err(ValidationError::new(
-                format!("{field}.floor_fit_range_m"),
-                Problem::OutOfRange { value: range, range: "0 (none) or [0.1, 1000] m" },
-            ));
-        }
+        let sigma = unknown_or_within(
+            d.angular_sigma_rad,
+            &format!("{field}.angular_sigma_rad"),
+            ANGULAR_SIGMA_RANGE_RAD,
+            "0 (unknown) or [1e-4, π] rad",
+        )?;
+        let coherence = unknown_or_within(
+            d.coherence,
+            &format!("{field}.coherence"),
+            (0.0, 1.0),
+            "0 (unknown) or (0, 1]",
+        )?;
+        let floor_fit_range_m = unknown_or_within(
+            d.floor_fit_range_m,
+            &format!("{field}.floor_fit_range_m"),
+            FLOOR_FIT_RANGE_M,
+            "0 (none) or [0.1, 1000] m",
+        )?;
         let field = format!("{field}.signature_db");
         let (lo, hi) = SIGNATURE_DB_RANGE;
         for (i, &v) in d.signature_db.iter().enumerate() {
@@ -489,10 +499,10 @@ impl TrackedDoa {
             track_id: d.track_id,
             direction_in_array,
             activity,
-            angular_sigma_rad: (sigma > 0.0).then_some(sigma),
+            angular_sigma_rad: sigma,
             signature: (!d.signature_db.is_empty()).then(|| d.signature_db.clone()),
-            coherence: (coherence > 0.0).then_some(coherence),
-            floor_fit_range_m: (range > 0.0).then_some(range),
+            coherence,
+            floor_fit_range_m,
         })
     }
 

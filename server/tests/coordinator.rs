@@ -347,8 +347,8 @@ fn direct_path_elevations_are_folded_without_a_pull() {
     let source = Point3::new(0.0, 0.0, 1.2);
     let config = CoordinatorConfig::default();
     let direct = octagon_fold(0.0);
-    let declared = folded_published(config.clone(), Some(OCTAGON_BAND), &direct, None, &source, true).0;
-    let undeclared = folded_published(config, Some(OCTAGON_BAND), &direct, None, &source, false).0;
+    let declared = folded_published(config.clone(), Some(OCTAGON_BAND), &direct, None, &source, true, None).0;
+    let undeclared = folded_published(config, Some(OCTAGON_BAND), &direct, None, &source, false, None).0;
     assert!((declared - source).norm() < 0.02, "declared: {declared} vs {source}");
     assert!(source.z - undeclared.z > 0.1, "undeclared: {undeclared} is pulled down from {source}");
 }
@@ -364,8 +364,8 @@ fn a_floor_fit_is_read_along_its_image_path_at_the_coordinators_range() {
     let config = CoordinatorConfig::default();
     let fitted = soundmap_server::floor_image::FloorFold { fitted_range_m: Some(12.0), ..octagon_fold(0.0) };
     let band = Some(OCTAGON_BAND);
-    let read = fitted_published(config.clone(), band, &fitted, None, &source, true, Some(12.0)).0;
-    let unread = fitted_published(config, band, &fitted, None, &source, true, None).0;
+    let read = folded_published(config.clone(), band, &fitted, None, &source, true, Some(12.0)).0;
+    let unread = folded_published(config, band, &fitted, None, &source, true, None).0;
     assert!((read - source).norm() < 0.02, "with the range: {read} vs {source}");
     assert!(unread.z - source.z > 0.1, "without: {unread} is above {source}");
 }
@@ -406,7 +406,7 @@ fn planar_elevation_noise_widens_the_published_height_only() {
         let mut config = CoordinatorConfig::default();
         config.doa.planar_elevation_noise = on;
         let fold = octagon_fold(config.doa.floor_reflection);
-        folded_published(config, Some(OCTAGON_BAND), &fold, None, &source, false)
+        folded_published(config, Some(OCTAGON_BAND), &fold, None, &source, false, None)
     };
     let (off_p, off_cov) = published(false);
     let (on_p, on_cov) = published(true);
@@ -428,23 +428,12 @@ fn folded_estimate(
     coherence: Option<f64>,
     source: &Point3<f64>,
 ) -> Point3<f64> {
-    folded_published(config, band, fold, coherence, source, false).0
+    folded_published(config, band, fold, coherence, source, false, None).0
 }
 
-/// [`folded_estimate`]'s position and its covariance.
+/// [`folded_estimate`]'s position and its covariance, the robots declaring
+/// `direct_path_elevations` and each DoA carrying `floor_fit_range_m`.
 fn folded_published(
-    config: CoordinatorConfig,
-    band: Option<[f64; 2]>,
-    fold: &soundmap_server::floor_image::FloorFold,
-    coherence: Option<f64>,
-    source: &Point3<f64>,
-    direct_path_elevations: bool,
-) -> (Point3<f64>, nalgebra::Matrix3<f64>) {
-    fitted_published(config, band, fold, coherence, source, direct_path_elevations, None)
-}
-
-/// [`folded_published`] with each DoA's `floor_fit_range_m`.
-fn fitted_published(
     config: CoordinatorConfig,
     band: Option<[f64; 2]>,
     fold: &soundmap_server::floor_image::FloorFold,
