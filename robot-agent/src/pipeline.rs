@@ -10,7 +10,7 @@
 //! from the sample count). A frame's DoAs are stamped at the middle of the
 //! analysed frame: first sample of the frame + `frame_len/(2·fs)`.
 
-use nalgebra::{Point3, UnitQuaternion};
+use nalgebra::{Point3, Unit, UnitQuaternion, Vector3};
 use soundmap_proto::Stamp;
 
 use crate::array::ArrayGeometry;
@@ -189,6 +189,12 @@ pub fn aperture_scale(aperture_m: f64, full_m: f64) -> f64 {
     if aperture_m > 0.0 && full_m > 0.0 { (full_m / aperture_m).max(1.0) } else { 1.0 }
 }
 
+/// A track's direction moving less than this since its last floor fit
+/// (degrees) counts as steady (see [`Pipeline::correct_floor_pull`]).
+const STEADY_DEG: f64 = 1.0;
+/// Fits of a track at the full rate before it may count as steady.
+const SETTLING_FITS: u32 = 4;
+
 /// A track's floor-reflection correction (see [`Pipeline::correct_floor_pull`]).
 #[derive(Clone, Copy, Debug)]
 struct FloorOffset {
@@ -199,6 +205,12 @@ struct FloorOffset {
     /// the smoothed pair stays on it.
     offset_rad: f64,
     inverse_range: f64,
+    /// The track's direction (array frame) at its last kept fit, and the
+    /// hops since that fit.
+    fitted_direction: Unit<Vector3<f64>>,
+    hops_since_fit: usize,
+    /// Kept fits of this track.
+    fits: u32,
 }
 
 /// STFT → SRP-PHAT → tracker for one array.
@@ -227,10 +239,12 @@ pub struct Pipeline {
     /// The base's position in the map at the current hop (from SLAM), if given.
     base_position: Option<Point3<f64>>,
     /// With the floor-reflection fit: each reported track's elevation
-    /// offset (smoothed); the hops so far, and hops between fits.
+    /// offset (smoothed); the hops so far, and hops between fits (of any
+    /// track, and of a steady one: 0 = as any).
     floor_offsets: Vec<FloorOffset>,
     floor_hops: usize,
     floor_every: usize,
+    floor_steady_every: usize,
 }
 
 impl Pipeline {
@@ -293,6 +307,7 @@ impl Pipeline {
             floor_offsets: Vec::with_capacity(config.tracker.max_tracks),
             floor_hops: 0,
             floor_every: config.srp.floor_fit_every_hops,
+            floor_steady_every: config.srp.floor_fit_steady_every_hops,
         })
     }
 
@@ -426,23 +441,47 @@ impl Pipeline {
     /// elevation offset found (smoothed, half of each new fit) moves the
     /// reported direction every hop. The tracker keeps tracking the
     /// plane-wave peaks; only what is reported is corrected.
+    ///
+    /// A *steady* track, one whose direction in the array frame has moved
+    /// less than [`STEADY_DEG`] since its last kept fit, is fitted only every
+    /// `floor_fit_steady_every_hops` hops: its offset depends on the
+    /// source's elevation and range as the array sees them, which have not
+    /// changed, and the averaged cross-spectra it would be fitted on are
+    /// mostly the same frames again (they remember ~16, the fits come every
+    /// 8). A robot turning or a source moving across the array makes the
+    /// track move, and it is fitted at the full rate again.
     fn correct_floor_pull(&mut self) {
         let r = &mut self.result;
         self.floor_hops += 1;
         if self.floor_hops.is_multiple_of(self.floor_every) {
+            let steady_cos = STEADY_DEG.to_radians().cos();
             for &i in &r.reported {
                 let (id, d) = (r.tracks[i].track_id, r.tracks[i].direction_in_array);
+                let entry = self.floor_offsets.iter().position(|f| f.track_id == id);
+                if let Some(f) = entry.map(|k| &mut self.floor_offsets[k]) {
+                    f.hops_since_fit += self.floor_every;
+                    let steady = f.fits >= SETTLING_FITS && f.fitted_direction.dot(&d) > steady_cos;
+                    if self.floor_steady_every > 0 && steady && f.hops_since_fit < self.floor_steady_every {
+                        continue;
+                    }
+                }
                 let Some(fit) = self.srp.fit_floor(&d) else { continue };
                 let room = self.floor_offsets.len() < self.floor_offsets.capacity();
-                match self.floor_offsets.iter_mut().find(|f| f.track_id == id) {
+                match entry.map(|k| &mut self.floor_offsets[k]) {
                     Some(f) => {
                         f.offset_rad = 0.5 * (f.offset_rad + fit.offset_rad);
                         f.inverse_range = 0.5 * (f.inverse_range + 1.0 / fit.range_m);
+                        f.fits = f.fits.saturating_add(1);
+                        f.fitted_direction = d;
+                        f.hops_since_fit = 0;
                     }
                     None if room => self.floor_offsets.push(FloorOffset {
                         track_id: id,
                         offset_rad: fit.offset_rad,
                         inverse_range: 1.0 / fit.range_m,
+                        fitted_direction: d,
+                        hops_since_fit: 0,
+                        fits: 1,
                     }),
                     None => {}
                 }

@@ -145,6 +145,10 @@ pub struct SrpConfig {
     pub floor_fit_frames: f64,
     /// Hops between two fits of each reported track (1: every hop).
     pub floor_fit_every_hops: usize,
+    /// Hops between two fits of a *steady* track: one whose direction (in
+    /// the array frame) has moved less than 1° since its last fit. 0 fits
+    /// every track every `floor_fit_every_hops`.
+    pub floor_fit_steady_every_hops: usize,
 }
 
 impl Default for SrpConfig {
@@ -174,6 +178,7 @@ impl Default for SrpConfig {
             floor_fit_min_gain: 0.0,
             floor_fit_frames: 16.0,
             floor_fit_every_hops: 8,
+            floor_fit_steady_every_hops: 32,
         }
     }
 }
@@ -337,6 +342,16 @@ impl Srp {
         }
         if config.floor_fit_every_hops == 0 {
             return Err(bad("floor_fit_every_hops", "must be at least 1".into()));
+        }
+        let steady = config.floor_fit_steady_every_hops;
+        if steady != 0 && steady < config.floor_fit_every_hops {
+            return Err(bad(
+                "floor_fit_steady_every_hops",
+                format!(
+                    "must be 0 (off) or at least floor_fit_every_hops ({}), got {steady}",
+                    config.floor_fit_every_hops
+                ),
+            ));
         }
         let floor = if config.floor_fit {
             let beta = config.floor_reflection;

@@ -54,8 +54,14 @@
 //! it by ~10°), and the pipeline fits each *reported track* on it every
 //! `floor_fit_every_hops` hops (8), starting from the track's direction,
 //! and moves what it reports by the elevation offset found (smoothed, half
-//! of each new fit). The tracker keeps tracking the plane-wave peaks, so
-//! births, gates and several sources behave as without the fit.
+//! of each new fit). A track that has been fitted 4 times and whose
+//! direction in the array frame has since moved less than 1° is *steady*
+//! and is fitted only every `floor_fit_steady_every_hops` hops (32): its
+//! source's elevation and range as the array sees them have not changed,
+//! and the averaged cross-spectra remember only ~16 frames, so fits 8 hops
+//! apart see mostly the same frames twice (`crate::pipeline`). The tracker
+//! keeps tracking the plane-wave peaks, so births, gates and several
+//! sources behave as without the fit.
 //!
 //! **Search.** The model's steered power is sharp in the image's extra
 //! path `Δ = |s′| − |s|` (a path error of half a wavelength at the band's
@@ -93,11 +99,12 @@
 //! `base_from_array`, the base frame's origin on the floor as ROS's
 //! `base_footprint`), optionally the ceiling's height, and a reflection
 //! coefficient. Measured in `BENCHMARKS.md`, "The floor's reflection,
-//! fitted": the reverberant set's reported DoAs at RT60 0.65 s 0.51° / 2.43°
-//! (Pioneer, median / p95 of case medians) and 0.52° / 0.80° read at the
+//! fitted": the reverberant set's reported DoAs at RT60 0.65 s 0.61° / 1.79°
+//! (Pioneer, median / p95 of case medians) and 0.53° / 0.77° read at the
 //! true range; sources at 2–6 m placed within ±0.04 m in height by the
-//! coordinator; at ~4.5× the localizer's CPU, which is why it is off by
-//! default.
+//! coordinator; at about twice the localizer's CPU with steady tracks
+//! fitted less often (4.5× fitting every track every 8 hops), which is why
+//! it is off by default.
 
 use nalgebra::{Unit, Vector3};
 
@@ -473,8 +480,9 @@ impl FloorFit {
                     pi[q][l] = im as f32;
                     (re, im) = (re * c1 - im * s1, re * s1 + im * c1);
                 }
-                let (s8, c8) = (self.domega * tau * LANES as f64).sin_cos();
-                step[q] = (c8 as f32, s8 as f32);
+                // The 8-bin step e^{jω₈τ}: where the lanes' rotation ended,
+                // over where it began.
+                step[q] = ((re * c0 + im * s0) as f32, (im * c0 - re * s0) as f32);
             }
             for (wr, wi) in wr.chunks_exact_mut(LANES).zip(wi.chunks_exact_mut(LANES)) {
                 let mut ar = [0f32; LANES];
@@ -549,6 +557,9 @@ pub struct Csm {
     source_padded: usize,
     re: Vec<f32>,
     im: Vec<f32>,
+    /// The frame's kept bins per microphone (padded), gathered.
+    xr: Vec<f32>,
+    xi: Vec<f32>,
     keep: f32,
     /// Frames accumulated since the last reset (saturating).
     pub frames: u32,
@@ -570,6 +581,8 @@ impl Csm {
             source_padded,
             re: vec![0.0; len],
             im: vec![0.0; len],
+            xr: vec![0.0; mics * padded],
+            xi: vec![0.0; mics * padded],
             keep: (1.0 - 1.0 / frames.max(1.0)) as f32,
             frames: 0,
             arch: pulp::Arch::new(),
@@ -602,15 +615,29 @@ impl crate::simd::Kernel for Accumulate<'_> {
         let Accumulate { csm, cc } = self;
         let (padded, src, keep) = (csm.padded, csm.source_padded, csm.keep);
         let fresh = 1.0 - keep;
+        // The kept bins of each microphone, gathered once (their padding
+        // stays zero), so that the pairs' loop runs over contiguous lanes.
+        let mics = csm.xr.len() / padded;
+        for m in 0..mics {
+            let (sr, si) = (&cc.phat_re[m * src..(m + 1) * src], &cc.phat_im[m * src..(m + 1) * src]);
+            let (xr, xi) =
+                (&mut csm.xr[m * padded..(m + 1) * padded], &mut csm.xi[m * padded..(m + 1) * padded]);
+            for c in 0..csm.kept {
+                xr[c] = sr[c * BIN_STRIDE];
+                xi[c] = si[c * BIN_STRIDE];
+            }
+        }
         for (p, &(i, j)) in csm.pairs.iter().enumerate() {
-            let (xri, xii) = (&cc.phat_re[i * src..(i + 1) * src], &cc.phat_im[i * src..(i + 1) * src]);
-            let (xrj, xij) = (&cc.phat_re[j * src..(j + 1) * src], &cc.phat_im[j * src..(j + 1) * src]);
+            let (xri, xii) = (&csm.xr[i * padded..(i + 1) * padded], &csm.xi[i * padded..(i + 1) * padded]);
+            let (xrj, xij) = (&csm.xr[j * padded..(j + 1) * padded], &csm.xi[j * padded..(j + 1) * padded]);
             let rr = &mut csm.re[p * padded..(p + 1) * padded];
             let ri = &mut csm.im[p * padded..(p + 1) * padded];
-            for c in 0..csm.kept {
-                let k = c * BIN_STRIDE;
-                rr[c] = keep * rr[c] + fresh * (xri[k] * xrj[k] + xii[k] * xij[k]);
-                ri[c] = keep * ri[c] + fresh * (xii[k] * xrj[k] - xri[k] * xij[k]);
+            for k0 in (0..padded).step_by(LANES) {
+                for l in 0..LANES {
+                    let k = k0 + l;
+                    rr[k] = keep * rr[k] + fresh * (xri[k] * xrj[k] + xii[k] * xij[k]);
+                    ri[k] = keep * ri[k] + fresh * (xii[k] * xrj[k] - xri[k] * xij[k]);
+                }
             }
         }
         csm.frames = csm.frames.saturating_add(1);

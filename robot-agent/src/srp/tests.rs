@@ -410,6 +410,8 @@ fn floor_fit_settings_are_checked() {
     bad(SrpConfig { floor_fit_min_gain: -0.5, ..on.clone() }, "srp.floor_fit_min_gain");
     bad(SrpConfig { floor_fit_frames: 0.5, ..on.clone() }, "srp.floor_fit_frames");
     bad(SrpConfig { floor_fit_every_hops: 0, ..on.clone() }, "srp.floor_fit_every_hops");
+    bad(SrpConfig { floor_fit_steady_every_hops: 4, ..on.clone() }, "srp.floor_fit_steady_every_hops");
+    assert!(Srp::new(&array, FS, N, &SrpConfig { floor_fit_steady_every_hops: 0, ..on.clone() }).is_ok());
     // An array whose mount gives no height (identity) needs floor_height_m.
     let flat = ArrayGeometry::load("respeaker-4").unwrap();
     let e = Srp::new(&flat, FS, N, &on).unwrap_err().to_string();
