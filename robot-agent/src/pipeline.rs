@@ -10,7 +10,7 @@
 //! from the sample count). A frame's DoAs are stamped at the middle of the
 //! analysed frame: first sample of the frame + `frame_len/(2·fs)`.
 
-use nalgebra::{Point3, Unit, UnitQuaternion, Vector3};
+use nalgebra::{Point3, UnitQuaternion};
 use soundmap_proto::Stamp;
 
 use crate::array::ArrayGeometry;
@@ -189,8 +189,9 @@ pub fn aperture_scale(aperture_m: f64, full_m: f64) -> f64 {
     if aperture_m > 0.0 && full_m > 0.0 { (full_m / aperture_m).max(1.0) } else { 1.0 }
 }
 
-/// A track's direction moving less than this since its last floor fit
-/// (degrees) counts as steady (see [`Pipeline::correct_floor_pull`]).
+/// A track's elevation above the floor moving less than this since its
+/// last floor fit (degrees) counts as steady (see
+/// [`Pipeline::correct_floor_pull`]).
 const STEADY_DEG: f64 = 1.0;
 /// Fits of a track at the full rate before it may count as steady.
 const SETTLING_FITS: u32 = 4;
@@ -205,9 +206,9 @@ struct FloorOffset {
     /// the smoothed pair stays on it.
     offset_rad: f64,
     inverse_range: f64,
-    /// The track's direction (array frame) at its last kept fit, and the
-    /// hops since that fit.
-    fitted_direction: Unit<Vector3<f64>>,
+    /// The track's elevation above the floor at its last kept fit (rad),
+    /// and the hops since that fit.
+    fitted_elevation: f64,
     hops_since_fit: usize,
     /// Kept fits of this track.
     fits: u32,
@@ -442,25 +443,32 @@ impl Pipeline {
     /// reported direction every hop. The tracker keeps tracking the
     /// plane-wave peaks; only what is reported is corrected.
     ///
-    /// A *steady* track, one whose direction in the array frame has moved
-    /// less than [`STEADY_DEG`] since its last kept fit, is fitted only every
+    /// A *steady* track, one whose elevation above the floor has moved less
+    /// than [`STEADY_DEG`] since its last kept fit, is fitted only every
     /// `floor_fit_steady_every_hops` hops: its offset depends on the
     /// source's elevation and range as the array sees them, which have not
     /// changed, and the averaged cross-spectra it would be fitted on are
     /// mostly the same frames again (they remember ~16, the fits come every
-    /// 8). A robot turning or a source moving across the array makes the
-    /// track move, and it is fitted at the full rate again.
+    /// 8). The floor's image lies at the source's own azimuth, so the
+    /// offset does not depend on it: a robot turning on the spot moves the
+    /// track's azimuth in the array frame and leaves it steady (and the
+    /// averaged cross-spectra, kept in the array frame, are smeared by the
+    /// turn anyway). A source rising or falling as the array sees it (the
+    /// robot driving towards it, a source moving closer) makes it unsteady,
+    /// and it is fitted at the full rate again.
     fn correct_floor_pull(&mut self) {
         let r = &mut self.result;
         self.floor_hops += 1;
         if self.floor_hops.is_multiple_of(self.floor_every) {
-            let steady_cos = STEADY_DEG.to_radians().cos();
+            let steady_rad = STEADY_DEG.to_radians();
             for &i in &r.reported {
                 let (id, d) = (r.tracks[i].track_id, r.tracks[i].direction_in_array);
+                let elevation = self.srp.floor_elevation(&d).unwrap_or(0.0);
                 let entry = self.floor_offsets.iter().position(|f| f.track_id == id);
                 if let Some(f) = entry.map(|k| &mut self.floor_offsets[k]) {
                     f.hops_since_fit += self.floor_every;
-                    let steady = f.fits >= SETTLING_FITS && f.fitted_direction.dot(&d) > steady_cos;
+                    let steady =
+                        f.fits >= SETTLING_FITS && (f.fitted_elevation - elevation).abs() < steady_rad;
                     if self.floor_steady_every > 0 && steady && f.hops_since_fit < self.floor_steady_every {
                         continue;
                     }
@@ -472,14 +480,14 @@ impl Pipeline {
                         f.offset_rad = 0.5 * (f.offset_rad + fit.offset_rad);
                         f.inverse_range = 0.5 * (f.inverse_range + 1.0 / fit.range_m);
                         f.fits = f.fits.saturating_add(1);
-                        f.fitted_direction = d;
+                        f.fitted_elevation = elevation;
                         f.hops_since_fit = 0;
                     }
                     None if room => self.floor_offsets.push(FloorOffset {
                         track_id: id,
                         offset_rad: fit.offset_rad,
                         inverse_range: 1.0 / fit.range_m,
-                        fitted_direction: d,
+                        fitted_elevation: elevation,
                         hops_since_fit: 0,
                         fits: 1,
                     }),

@@ -145,8 +145,9 @@ pub struct SrpConfig {
     pub floor_fit_frames: f64,
     /// Hops between two fits of each reported track (1: every hop).
     pub floor_fit_every_hops: usize,
-    /// Hops between two fits of a *steady* track: one whose direction (in
-    /// the array frame) has moved less than 1° since its last fit. 0 fits
+    /// Hops between two fits of a *steady* track: one whose elevation above
+    /// the floor has moved less than 1° since its last fit (its azimuth may
+    /// move: the floor's image lies at the source's own azimuth). 0 fits
     /// every track every `floor_fit_every_hops`.
     pub floor_fit_steady_every_hops: usize,
 }
@@ -691,6 +692,11 @@ impl Srp {
     /// kept), when the floor fit is on.
     pub fn shift_elevation(&self, d: &Unit<Vector3<f64>>, offset_rad: f64) -> Option<Unit<Vector3<f64>>> {
         self.floor.as_ref().map(|f| f.shift_elevation(d, offset_rad))
+    }
+
+    /// The elevation of `d` above the floor (rad), when the floor fit is on.
+    pub fn floor_elevation(&self, d: &Vector3<f64>) -> Option<f64> {
+        self.floor.as_ref().map(|f| f.elevation(d))
     }
 
     /// Tells the floor-reflection fit the analysis window (see

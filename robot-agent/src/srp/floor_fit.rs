@@ -55,11 +55,13 @@
 //! `floor_fit_every_hops` hops (8), starting from the track's direction,
 //! and moves what it reports by the elevation offset found (smoothed, half
 //! of each new fit). A track that has been fitted 4 times and whose
-//! direction in the array frame has since moved less than 1° is *steady*
-//! and is fitted only every `floor_fit_steady_every_hops` hops (32): its
-//! source's elevation and range as the array sees them have not changed,
-//! and the averaged cross-spectra remember only ~16 frames, so fits 8 hops
-//! apart see mostly the same frames twice (`crate::pipeline`). The tracker
+//! elevation above the floor has since moved less than 1° is *steady* and
+//! is fitted only every `floor_fit_steady_every_hops` hops (32): its
+//! source's elevation and range as the array sees them have not changed
+//! (its azimuth may have: the images lie at the source's own azimuth, so
+//! the offset does not depend on it), and the averaged cross-spectra
+//! remember only ~16 frames, so fits 8 hops apart see mostly the same
+//! frames twice (`crate::pipeline`). The tracker
 //! keeps tracking the plane-wave peaks, so births, gates and several
 //! sources behave as without the fit.
 //!
