@@ -213,7 +213,16 @@ fn output_directions(
 ) -> Vec<Vector3<f64>> {
     let (model, mics) = room_and_mics(array, case, reflections);
     let mut rng = ChaCha8Rng::seed_from_u64(case.seed ^ 0x5eed);
-    let s: Vec<f64> = (0..model.len() + LEN).map(|_| rng.sample(StandardNormal)).collect();
+    let mut s: Vec<f64> = (0..model.len() + LEN).map(|_| rng.sample(StandardNormal)).collect();
+    if std::env::var("SOUNDMAP_TALKER").is_ok_and(|v| v != "0") {
+        // A talker instead of white noise (as in the corner sweep).
+        use soundmap_sim::acoustics::signals::SignalGenerator;
+        let waveform = Waveform::Talker { low_hz: 300.0, high_hz: 3400.0, syllable_hz: 4.5 };
+        let signal = SourceSignal { waveform, ..SourceSignal::white_noise(1.0, case.seed) };
+        let mut t = vec![0f32; s.len()];
+        SignalGenerator::new(&signal, FS).unwrap().fill(0, &mut t);
+        s = t.iter().map(|&v| f64::from(v)).collect();
+    }
     let mut x = hear(&model, &mics, case, &s, LEN);
     let power = x.iter().flatten().map(|v| v * v).sum::<f64>() / (x.len() * LEN) as f64;
     let noise = 0.1 * power.sqrt();
@@ -766,7 +775,8 @@ fn error_parts_sweep() {
 /// `SOUNDMAP_FLOOR_FIT=1` turns on `[srp] floor_fit` (with
 /// `SOUNDMAP_FLOOR_REFLECTION`, `SOUNDMAP_FLOOR_MIN_GAIN`, and
 /// `SOUNDMAP_FLOOR_CEILING=1` for the room's ceiling), `SOUNDMAP_CASES=1`
-/// prints each case:
+/// prints each case, `SOUNDMAP_TALKER=1` plays the corner sweep's talker
+/// (300–3400 Hz, 4.5 syllables/s) instead of white noise:
 /// `cargo test -p soundmap-sim --test hearing_reverb reported_sweep -- --ignored --nocapture`.
 #[test]
 #[ignore = "about a minute; run with --ignored --nocapture"]

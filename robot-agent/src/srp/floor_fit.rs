@@ -101,12 +101,18 @@
 //! `base_from_array`, the base frame's origin on the floor as ROS's
 //! `base_footprint`), optionally the ceiling's height, and a reflection
 //! coefficient. Measured in `BENCHMARKS.md`, "The floor's reflection,
-//! fitted": the reverberant set's reported DoAs at RT60 0.65 s 0.61° / 1.79°
-//! (Pioneer, median / p95 of case medians) and 0.53° / 0.77° read at the
+//! fitted": the reverberant set's reported DoAs at RT60 0.65 s 0.61° / 1.33°
+//! (Pioneer, median / p95 of case medians) and 0.60° / 0.77° read at the
 //! true range; sources at 2–6 m placed within ±0.04 m in height by the
 //! coordinator; at about twice the localizer's CPU with steady tracks
-//! fitted less often (4.5× fitting every track every 8 hops), which is why
-//! it is off by default.
+//! fitted less often (4.5× fitting every track every 8 hops). All of that
+//! is on white noise. A talker (300–3400 Hz) is pulled further (+8 to +12°
+//! in the same rooms) and the fit leaves 3–6° of it at the median: its fits
+//! are weak (1–5 % above the direct path alone) and scatter by several
+//! degrees from one to the next; in the closed loop with a walking talker
+//! (`corner-start`) the coordinator's estimates came out worse than with
+//! the default's plane-wave peaks and the coordinator's own pull model.
+//! With the CPU, that is why it is off by default.
 
 use nalgebra::{Unit, Vector3};
 
