@@ -6,6 +6,9 @@
 //! z up); optionally the hop's SRP peaks as
 //! `"potentials":[{"x","y","z","energy"}]`, each with `"range_m"` when the
 //! near-field refinement (`[srp] near_field`) found the peak at a finite range.
+//! With the floor-reflection fit (`[srp] floor_fit`), a reported track whose
+//! elevation was fitted also carries `"floor_fit_range_m"`, the range it was
+//! fitted at (what `TrackedDoa.floor_fit_range_m` sends the coordinator).
 
 use std::io::Write;
 
@@ -22,6 +25,8 @@ struct SourceLine {
     y: f64,
     z: f64,
     activity: f64,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    floor_fit_range_m: Option<f64>,
 }
 
 #[derive(Serialize)]
@@ -74,13 +79,20 @@ fn hop_line(r: &FrameResult, options: LineOptions) -> HopLine {
         sources: r
             .tracks
             .iter()
-            .filter(|t| options.all_tracks || t.confirmed)
-            .map(|t| SourceLine {
+            .enumerate()
+            .filter(|(_, t)| options.all_tracks || t.confirmed)
+            .map(|(i, t)| SourceLine {
                 id: t.track_id,
                 x: t.direction_in_array.x,
                 y: t.direction_in_array.y,
                 z: t.direction_in_array.z,
                 activity: t.activity,
+                floor_fit_range_m: r
+                    .reported
+                    .iter()
+                    .position(|&k| k == i)
+                    .and_then(|n| r.floor_fit_ranges_m.get(n).copied())
+                    .filter(|&m| m > 0.0),
             })
             .collect(),
         potentials: options.potentials.then(|| {

@@ -133,6 +133,8 @@ fn localize_writes_one_line_per_hop_with_the_source_direction() {
         assert!(synth::angle_deg(&d, &truth()) < 5.0, "{h}");
         assert!((0.0..=1.0).contains(&s["activity"].as_f64().unwrap()));
         assert!(s["id"].as_u64().is_some());
+        // No floor-reflection fit by default, so no range it was fitted at.
+        assert!(s.get("floor_fit_range_m").is_none(), "{h}");
     }
     for h in &hops[2..] {
         let p = h["potentials"].as_array().unwrap();
