@@ -36,7 +36,7 @@ use soundmap_server::planner::{
 use soundmap_server::ray::tangent_basis;
 use soundmap_server::tracking::{InitOutcome, SourceTracker, TrackerConfig};
 use soundmap_server::triangulation::pair::paper_ray_to_ray;
-use soundmap_server::{CoordinatorConfig, Ray, TriangulationConfig, service, triangulate};
+use soundmap_server::{CoordinatorConfig, Ray, TriangulationConfig, service, triangulate, triangulate_from};
 
 /// Best-of-`reps` nanoseconds per call of `f` over `n` calls.
 fn time_per_call(reps: usize, n: usize, mut f: impl FnMut(usize)) -> f64 {
@@ -111,6 +111,32 @@ fn bench_triangulation(quick: bool) {
     let lm128_folded = time_per_call(3, n / 1000, |i| {
         black_box(triangulate(black_box(&sets128_folded[i % 64]), &cfg));
     });
+    // Warm starts: each set's fit point moved 1.5 cm (what a source's last
+    // estimate typically is from its next fit in the simulations), and 7.5 cm.
+    let hints = |sets: &[Vec<Ray>], off_m: f64| -> Vec<Point3<f64>> {
+        sets.iter()
+            .enumerate()
+            .map(|(k, r)| {
+                let p = triangulate(r, &cfg).solution().map_or(source, |s| s.source_in_map);
+                let a = k as f64 * 2.399;
+                p + Vector3::new(a.cos(), a.sin(), 0.5 * (1.7 * a).sin()).normalize() * off_m
+            })
+            .collect()
+    };
+    let warm = |sets: &[Vec<Ray>], hints: &[Point3<f64>], reps: usize, calls: usize| {
+        time_per_call(reps, calls, |i| {
+            let k = i % sets.len();
+            black_box(triangulate_from(black_box(&sets[k]), &cfg, Some(hints[k])));
+        })
+    };
+    let (near8, far8) = (hints(&sets8_folded, 0.015), hints(&sets8_folded, 0.075));
+    let lm8_warm = warm(&sets8_folded, &near8, 5, n8);
+    let lm8_warm_far = warm(&sets8_folded, &far8, 5, n8);
+    let (near128, far128) = (hints(&sets128_folded, 0.015), hints(&sets128_folded, 0.075));
+    let lm128_warm = warm(&sets128_folded, &near128, 3, n / 1000);
+    let lm128_warm_far = warm(&sets128_folded, &far128, 3, n / 1000);
+    let near128_straight = hints(&sets128, 0.015);
+    let lm128_warm_straight = warm(&sets128, &near128_straight, 3, n / 200);
     println!("## triangulation (one thread)");
     println!("| operation | ns per call |");
     println!("|---|---|");
@@ -128,6 +154,19 @@ fn bench_triangulation(quick: bool) {
         "| 128 rays: IRLS least squares + Levenberg–Marquardt (Cauchy) with covariance and gate | {lm128:.0} |"
     );
     println!("| 128 rays, folded (floor-image model) | {lm128_folded:.0} |");
+    println!("| 8 rays, folded, warm-started 1.5 cm / 7.5 cm off | {lm8_warm:.0} / {lm8_warm_far:.0} |");
+    println!(
+        "| 128 rays, folded, warm-started 1.5 cm / 7.5 cm off | {lm128_warm:.0} / {lm128_warm_far:.0} |"
+    );
+    println!("| 128 straight rays, warm-started 1.5 cm off | {lm128_warm_straight:.0} |");
+    println!(
+        "warm / cold: 128 straight rays {:.2}, 8 folded rays {:.2} / {:.2}, 128 folded rays {:.2} / {:.2}",
+        lm128_warm_straight / lm128,
+        lm8_warm / lm8_folded,
+        lm8_warm_far / lm8_folded,
+        lm128_warm / lm128_folded,
+        lm128_warm_far / lm128_folded
+    );
     println!("pair / paper ratio: {:.1}×; target for the pair: < 1000 ns\n", pair / paper);
 }
 

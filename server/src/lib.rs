@@ -40,4 +40,4 @@ pub mod viz;
 pub use config::CoordinatorConfig;
 pub use error::ServerError;
 pub use ray::Ray;
-pub use triangulation::{Triangulation, TriangulationConfig, triangulate};
+pub use triangulation::{Triangulation, TriangulationConfig, triangulate, triangulate_from};

@@ -47,10 +47,16 @@ use crate::floor_image::{
     FloorFold, array_pattern, band_reflection, band_share, heard_band, reverberant_reflection,
 };
 use crate::ray::Ray;
-use crate::triangulation::triangulate;
+use crate::triangulation::{Gate, triangulate_from};
 use positioning::Positioning;
 use sound_map::{AlignedRays, SoundMap};
 use tracking::Tracking;
+
+/// The oldest estimate whose point still starts the next N-ray fit (s): a
+/// walker moves 0.7 m in that time, within the fit's reach from a point
+/// that close; an older one is more likely to cost iterations than save
+/// them.
+pub const WARM_HINT_MAX_AGE_S: f64 = 1.0;
 
 /// A track is taken as heard over the bands of its signature within this many
 /// dB of its strongest band (PHAT weighs every bin the source dominates alike).
@@ -620,6 +626,15 @@ impl Coordinator {
         self.sound_map.as_ref()
     }
 
+    /// Where the N-ray fit at `t` starts ([`triangulate_from`]): the last
+    /// estimate's triangulated point when the gate accepted it and it is at
+    /// most [`WARM_HINT_MAX_AGE_S`] from `t`.
+    fn warm_hint(&self, t: Stamp) -> Option<Point3<f64>> {
+        let last = self.last_estimate.as_ref()?;
+        let s = last.triangulation.solution().filter(|s| s.gate == Gate::Accepted)?;
+        (((t - last.stamp).abs() as f64) * 1e-9 <= WARM_HINT_MAX_AGE_S).then_some(s.source_in_map)
+    }
+
     /// Triangulates the rays aligned with `t`; also returns the newest stamp among them.
     fn triangulate_at(&mut self, now: Stamp, t: Stamp) -> Option<(Estimate, Stamp)> {
         let window_ns = self.config.alignment.window_ms as i64 * 1_000_000;
@@ -642,7 +657,7 @@ impl Coordinator {
             self.counters.unaligned += 1;
             return None;
         }
-        let triangulation = triangulate(&rays, &self.config.triangulation);
+        let triangulation = triangulate_from(&rays, &self.config.triangulation, self.warm_hint(t));
         let correlated_doa_fraction = self.config.tracking.correlated_doa_fraction;
         let estimate = Estimate {
             source_id: 0,

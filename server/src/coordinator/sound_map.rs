@@ -129,7 +129,9 @@ use crate::stats::chi2_quantile;
 use crate::tracking::{
     InitOutcome, SmoothedEstimate, SourceTracker, TrackEstimate, TrackerConfig, UpdateOutcome,
 };
-use crate::triangulation::{Gate, GateReason, Triangulation, TriangulationConfig, triangulate};
+use crate::triangulation::{
+    Gate, GateReason, Triangulation, TriangulationConfig, triangulate, triangulate_from,
+};
 
 pub use super::records::SourceRecord;
 pub use super::robots::TaggedRay;
@@ -835,10 +837,13 @@ impl SoundMap {
             if rays.len() == 1 && !self.held_by_one(s, aligned, &rays[0], newest, filtered.as_ref()) {
                 continue;
             }
+            // The filter predicted to the rays' stamp starts the N-ray fit
+            // (crate::triangulation, "Warm starts").
+            let hint = filtered.as_ref().map(|f| f.position_in_map);
             out.push(SourceSighting {
                 source_id: s.id,
                 robots,
-                triangulation: triangulate(&rays, config),
+                triangulation: triangulate_from(&rays, config, hint),
                 filtered,
                 smoothed: s.tracker.smoothed(),
                 newest,
