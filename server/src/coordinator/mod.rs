@@ -632,7 +632,7 @@ impl Coordinator {
     fn warm_hint(&self, t: Stamp) -> Option<Point3<f64>> {
         let last = self.last_estimate.as_ref()?;
         let s = last.triangulation.solution().filter(|s| s.gate == Gate::Accepted)?;
-        (((t - last.stamp).abs() as f64) * 1e-9 <= WARM_HINT_MAX_AGE_S).then_some(s.source_in_map)
+        (t.seconds_since(last.stamp).abs() <= WARM_HINT_MAX_AGE_S).then_some(s.source_in_map)
     }
 
     /// Triangulates the rays aligned with `t`; also returns the newest stamp among them.

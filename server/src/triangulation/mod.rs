@@ -345,6 +345,7 @@ pub fn triangulate_from(
         rays
     };
     let min_sin2 = config.min_ray_angle_deg.to_radians().sin().powi(2);
+    let folded = rays.iter().any(|r| r.fold.is_some());
     let (method, point, miss, chi2) = if n == 2 {
         let cp = match pair::closest_points(&rays[0], &rays[1]) {
             Some(cp) if cp.sin2 >= min_sin2 => cp,
@@ -355,11 +356,10 @@ pub fn triangulate_from(
             }
         };
         let (point, chi2) = pair::weighted_pair_point(&rays[0], &rays[1], &cp);
-        if rays.iter().any(|r| r.fold.is_some()) && behind(rays, &point, config.min_range_m).is_none() {
+        if folded && behind(rays, &point, config.min_range_m).is_none() {
             // Folded rays do not point at the source: the closed form is only the
             // start, refined on the floor-image model (crate::floor_image).
-            let fit = lm::refine(rays, point, RobustLoss::None, config.lm_max_iterations);
-            let fit = upper_branch(rays, fit, RobustLoss::None, config.lm_max_iterations);
+            let fit = fit_from(rays, point, RobustLoss::None, config.lm_max_iterations);
             (Method::RayPair, fit.point, Some(cp.miss_m), fit.chi2)
         } else {
             (Method::RayPair, point, Some(cp.miss_m), chi2)
@@ -378,13 +378,11 @@ pub fn triangulate_from(
         if let Some(d) = behind(rays, &ls, config.min_range_m) {
             return Triangulation::Degenerate(d);
         }
-        let folded = rays.iter().any(|r| r.fold.is_some());
         if let Some(warm) = hint.filter(|_| folded).and_then(|h| warm_fit(rays, h, config)) {
             return warm;
         }
         if config.lm_max_iterations > 0 {
-            let fit = lm::refine(rays, ls, config.robust_loss, config.lm_max_iterations);
-            let fit = upper_branch(rays, fit, config.robust_loss, config.lm_max_iterations);
+            let fit = fit_from(rays, ls, config.robust_loss, config.lm_max_iterations);
             (Method::LevenbergMarquardt, fit.point, None, fit.chi2)
         } else {
             let chi2 = lm::refine(rays, ls, RobustLoss::None, 0).chi2;
@@ -404,8 +402,7 @@ fn warm_fit(rays: &[Ray], hint: Point3<f64>, config: &TriangulationConfig) -> Op
         return None;
     }
     behind(rays, &hint, config.min_range_m).is_none().then_some(())?;
-    let fit = lm::refine(rays, hint, config.robust_loss, config.lm_max_iterations);
-    let fit = upper_branch(rays, fit, config.robust_loss, config.lm_max_iterations);
+    let fit = fit_from(rays, hint, config.robust_loss, config.lm_max_iterations);
     if !fit.converged || !fit.chi2.is_finite() || behind(rays, &fit.point, config.min_range_m).is_some() {
         return None;
     }
@@ -441,6 +438,12 @@ fn solved(
         residual_dof: dof,
         gate,
     }
+}
+
+/// Levenberg–Marquardt from `start`, then kept on the fold's upper branch
+/// ([`upper_branch`]).
+fn fit_from(rays: &[Ray], start: Point3<f64>, loss: RobustLoss, iterations: usize) -> lm::LmFit {
+    upper_branch(rays, lm::refine(rays, start, loss, iterations), loss, iterations)
 }
 
 /// The fit on the fold's upper branch ([`crate::floor_image`], "The fold's
