@@ -653,6 +653,12 @@ fn measured_config() -> PipelineConfig {
 fn corner_sweep() {
     for (label, d) in [("corner", 1.0), ("1.5 m further out", 2.5)] {
         for emission in [Emission::Talker, Emission::White, Emission::Silent] {
+            // `SOUNDMAP_CORNER_EMISSIONS=talker,white` runs only those.
+            if let Ok(only) = std::env::var("SOUNDMAP_CORNER_EMISSIONS")
+                && !only.split(',').any(|e| format!("{emission:?}").eq_ignore_ascii_case(e.trim()))
+            {
+                continue;
+            }
             print_corner(label, d, emission, 1..9, &measured_config());
         }
     }
