@@ -1,13 +1,17 @@
 //! Robot identities.
 
 use std::fmt;
+use std::sync::Arc;
 
 use crate::error::{Problem, ValidationError};
 
 /// A robot's identity: 1 to [`RobotId::MAX_LEN`] characters from
 /// `[A-Za-z0-9_.-]`, so that it is safe in file names, logs and metrics.
+///
+/// The text is shared: a clone (every estimate names its robots) costs a
+/// reference count, not an allocation.
 #[derive(Clone, Debug, PartialEq, Eq, PartialOrd, Ord, Hash)]
-pub struct RobotId(String);
+pub struct RobotId(Arc<str>);
 
 impl RobotId {
     /// Longest accepted id, in characters.
@@ -26,7 +30,7 @@ impl RobotId {
         if let Some(c) = s.chars().find(|c| !(c.is_ascii_alphanumeric() || matches!(c, '_' | '.' | '-'))) {
             return Err(err(Problem::InvalidCharacter(c)));
         }
-        Ok(RobotId(s.to_owned()))
+        Ok(RobotId(Arc::from(s)))
     }
 
     /// The id as text.

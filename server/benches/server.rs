@@ -8,10 +8,12 @@
 //!
 //! - tracker: the source tracker's per-DoA update, in order and with late DoAs;
 //! - planner: one planning cycle for 2, 3 and 8 robots;
-//! - sources: several sources (8 robots × 4 tracks) against one.
+//! - sources: several sources (8 robots × 4 tracks) against one;
+//! - fleet: the coordinator's state machine with 128 robots, one thread,
+//!   against the 128-ray triangulation alone.
 //!
 //! Options: `--quick` (shorter runs), `--only NAME` (triangulation | tracker |
-//! planner | sources | service), `--no-tracking` (the service without its source tracker,
+//! planner | sources | fleet | service), `--no-tracking` (the service without its source tracker,
 //! to see the tracker's share), `--folded` (the service's robots declare a
 //! planar array and its band, as soundmap agents do, so that the coordinator
 //! fits their rays on the floor-image model).
@@ -804,6 +806,114 @@ fn bench_sources(quick: bool) {
     println!("target: < 50 µs per observation with 8 robots × 4 tracks\n");
 }
 
+/// The coordinator's state machine at fleet scale, on one thread: 128 robots
+/// around one source, each reporting one DoA at 390 Hz (50,000 observations/s
+/// in all, as in the service's 128-robot cell), an estimate after every
+/// observation (the service's batches hold one observation when it keeps up).
+/// The reference in the same run is the 128-ray triangulation alone, from the
+/// warm start the coordinator uses: what is left over is `observe`, the
+/// gathering of each robot's nearest observation, tracking and the
+/// estimate's bookkeeping.
+fn bench_fleet(quick: bool) {
+    use soundmap_server::coordinator::Coordinator;
+    let n = 128usize;
+    let array = ArrayInfo {
+        base_from_array: Isometry3::translation(0.0, 0.0, 0.48),
+        microphone_count: 16,
+        preset: None,
+        microphone_positions: vec![],
+        srp_band_hz: None,
+        direct_path_elevations: false,
+    };
+    let source = Point3::new(0.4, -0.3, 1.2);
+    let bases: Vec<Point3<f64>> = (0..n)
+        .map(|k| {
+            let a = k as f64 * std::f64::consts::TAU / n as f64;
+            let r = 3.0 + (k % 4) as f64 * 0.5;
+            Point3::new(r * a.cos(), r * a.sin(), 0.0)
+        })
+        .collect();
+    let seconds = if quick { 0.5 } else { 2.0 };
+    let period_ns = (1e9 * n as f64 / 50_000.0) as i64;
+    let rounds = (seconds * 1e9 / period_ns as f64) as i64;
+    let t0 = Stamp::from_ns(1_767_225_600_000_000_000);
+    let mut rng = ChaCha8Rng::seed_from_u64(5);
+    let mut all = Vec::new();
+    let mut last_rays = Vec::new();
+    for k in 0..rounds {
+        last_rays.clear();
+        for (r, base) in bases.iter().enumerate() {
+            let stamp = t0.plus_ns(k * period_ns + r as i64 * period_ns / n as i64);
+            let map_from_base = Isometry3::translation(base.x, base.y, base.z);
+            let map_from_array = map_from_base * array.base_from_array;
+            let d = (map_from_array.inverse() * source).coords.normalize();
+            let e: f64 = StandardNormal.sample(&mut rng);
+            let d = Unit::new_normalize(d + tangent_basis(&Unit::new_normalize(d)).0 * e * 0.01);
+            let sigma = 1f64.to_radians();
+            last_rays.push(Ray {
+                origin_in_map: map_from_array * Point3::origin(),
+                direction_in_map: d,
+                sigma_rad: sigma,
+                origin_sigma_m: 0.01,
+                fold: None,
+            });
+            let doas = vec![TrackedDoa {
+                track_id: 1,
+                direction_in_array: d,
+                activity: 0.9,
+                angular_sigma_rad: Some(sigma),
+                signature: None,
+                coherence: None,
+                floor_fit_range_m: None,
+            }];
+            let obs =
+                Observation { sequence: k as u64 + 1, stamp, map_from_base, pose_covariance: None, doas };
+            all.push((r, stamp, obs));
+        }
+    }
+    let reps = if quick { 3 } else { 5 };
+    let config = CoordinatorConfig::default();
+    let mut estimates = 0u64;
+    let per_obs = time_per_call(reps, 1, |_| {
+        let mut c = Coordinator::new(config.clone()).unwrap();
+        let conns: Vec<_> = (0..n)
+            .map(|r| {
+                let hello = Hello {
+                    robot_id: RobotId::parse(&format!("fleet-robot-{r:03}"), "id").unwrap(),
+                    array: array.clone(),
+                    software_version: "bench".into(),
+                    signature_bands: None,
+                    max_tracks: Some(1),
+                    base_limits: Default::default(),
+                };
+                c.connect(t0, hello, None).unwrap().conn
+            })
+            .collect();
+        estimates = 0;
+        for (r, stamp, obs) in &all {
+            let now = stamp.plus_ns(1_000_000);
+            c.observe(now, conns[*r], obs.clone()).unwrap();
+            estimates += c.estimate(now).len() as u64;
+        }
+    }) / all.len() as f64;
+    let hint = Some(source + Vector3::new(0.01, 0.0, 0.0));
+    let tri = time_per_call(reps, 2000, |_| {
+        black_box(triangulate_from(black_box(&last_rays), &config.triangulation, hint));
+    });
+    println!(
+        "## the coordinator at fleet scale (one thread; {n} robots × 1 DoA, 50,000 observations/s of stamps, an estimate after each; {seconds} s)"
+    );
+    println!("| work | µs |");
+    println!("|---|---|");
+    println!(
+        "| per observation: observe + estimate ({estimates} estimates of {}) | {:.1} |",
+        all.len(),
+        per_obs / 1e3
+    );
+    println!("| reference: the {n}-ray triangulation alone, warm-started | {:.1} |", tri / 1e3);
+    println!("| the rest (observe, gathering, tracking, bookkeeping) | {:.1} |\n", (per_obs - tri) / 1e3);
+}
+
 fn main() {
     let args: Vec<String> = std::env::args().collect();
     let quick = args.iter().any(|a| a == "--quick");
@@ -820,6 +930,9 @@ fn main() {
     }
     if run("sources") {
         bench_sources(quick);
+    }
+    if run("fleet") {
+        bench_fleet(quick);
     }
     if run("service") {
         let arrays = if args.iter().any(|a| a == "--folded") { Arrays::Folded } else { Arrays::Undeclared };

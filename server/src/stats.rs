@@ -126,25 +126,61 @@ pub fn chi2_quantile_wilson_hilferty(dof: usize, p: f64) -> f64 {
 /// Quantile of the χ² distribution with `dof` degrees of freedom at probability `p`:
 /// closed forms for 1 and 2 dof, Newton's method from the Wilson–Hilferty guess
 /// up to [`WILSON_HILFERTY_MIN_DOF`], Wilson–Hilferty alone above (finite for any dof).
+///
+/// Newton's sums cost O(dof) logarithms per step: for a 128-ray gate (253 dof)
+/// about 10 µs, as much as the rest of the gate. The gates ask for the same few
+/// (dof, p) again and again, so the Newton results are kept in a small
+/// per-thread table (direct-mapped, [`QUANTILE_CACHE_SLOTS`] slots, no
+/// allocation): a hit returns the value computed before, bit for bit.
 pub fn chi2_quantile(dof: usize, p: f64) -> f64 {
     match dof {
         0 => 0.0,
         1 => normal_quantile(0.5 + p / 2.0).powi(2),
         2 => -2.0 * (1.0 - p).ln(),
         k if k > WILSON_HILFERTY_MIN_DOF => chi2_quantile_wilson_hilferty(k, p),
-        k => {
-            let mut x = chi2_quantile_wilson_hilferty(k, p).max(1e-6);
-            for _ in 0..8 {
-                // F(x) − p = (1 − Q) − p; F' = density.
-                let step = ((1.0 - chi2_survival(k, x)) - p) / chi2_density(k, x);
-                x = (x - step).max(x / 10.0);
-                if step.abs() < 1e-10 * x {
-                    break;
-                }
+        k => QUANTILE_CACHE.with(|cache| {
+            let key = (k, p.to_bits());
+            let slot = &cache[quantile_slot(key)];
+            if let Some((cached, value)) = slot.get()
+                && cached == key
+            {
+                return value;
             }
-            x
+            let value = chi2_quantile_newton(k, p);
+            slot.set(Some((key, value)));
+            value
+        }),
+    }
+}
+
+/// Slots of the per-thread table of [`chi2_quantile`]'s Newton results.
+pub const QUANTILE_CACHE_SLOTS: usize = 64;
+
+type QuantileSlot = std::cell::Cell<Option<((usize, u64), f64)>>;
+
+thread_local! {
+    static QUANTILE_CACHE: [QuantileSlot; QUANTILE_CACHE_SLOTS] =
+        const { [const { std::cell::Cell::new(None) }; QUANTILE_CACHE_SLOTS] };
+}
+
+/// The table's slot for (dof, p's bits): a multiplicative hash of both.
+fn quantile_slot((dof, p_bits): (usize, u64)) -> usize {
+    let h = (dof as u64 ^ p_bits.rotate_left(29)).wrapping_mul(0x9E37_79B9_7F4A_7C15);
+    (h >> 58) as usize % QUANTILE_CACHE_SLOTS
+}
+
+/// Newton's method from the Wilson–Hilferty guess, for 3 ≤ dof ≤ [`WILSON_HILFERTY_MIN_DOF`].
+fn chi2_quantile_newton(k: usize, p: f64) -> f64 {
+    let mut x = chi2_quantile_wilson_hilferty(k, p).max(1e-6);
+    for _ in 0..8 {
+        // F(x) − p = (1 − Q) − p; F' = density.
+        let step = ((1.0 - chi2_survival(k, x)) - p) / chi2_density(k, x);
+        x = (x - step).max(x / 10.0);
+        if step.abs() < 1e-10 * x {
+            break;
         }
     }
+    x
 }
 
 #[cfg(test)]
@@ -170,6 +206,26 @@ mod tests {
             assert!((got - q).abs() / q < 2e-3, "dof {dof} p {p}: {got} vs {q}");
         }
         assert!((normal_quantile(0.975) - 1.959964).abs() < 1e-5);
+    }
+
+    #[test]
+    fn the_table_returns_what_newton_computes_for_each_key() {
+        // More keys than slots, asked twice in interleaved orders: every answer
+        // is Newton's for its own (dof, p), whether it came from the table or not.
+        let keys: Vec<(usize, f64)> = (3..=80).flat_map(|k| [(k, 0.99), (k, 0.999), (k * 3, 0.95)]).collect();
+        assert!(keys.len() > 3 * QUANTILE_CACHE_SLOTS);
+        for pass in 0..2 {
+            for (i, &(k, p)) in keys.iter().enumerate() {
+                let (k, p) = if pass == 1 { keys[keys.len() - 1 - i] } else { (k, p) };
+                for _ in 0..2 {
+                    assert_eq!(
+                        chi2_quantile(k, p).to_bits(),
+                        chi2_quantile_newton(k, p).to_bits(),
+                        "dof {k} p {p}"
+                    );
+                }
+            }
+        }
     }
 
     #[test]

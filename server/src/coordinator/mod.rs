@@ -639,8 +639,8 @@ impl Coordinator {
     fn triangulate_at(&mut self, now: Stamp, t: Stamp) -> Option<(Estimate, Stamp)> {
         let window_ns = self.config.alignment.window_ms as i64 * 1_000_000;
         let stale_after_ns = self.stale_after_ns();
-        let mut robots = Vec::new();
-        let mut rays = Vec::new();
+        let mut robots = Vec::with_capacity(self.robots.len());
+        let mut rays = Vec::with_capacity(self.robots.len());
         let mut newest = Stamp::ZERO;
         for (id, e) in &self.robots {
             if e.liveness(now, stale_after_ns) != Liveness::Live {

@@ -155,24 +155,36 @@ impl RobotEntry {
         self.conn.is_none() && now - self.last_seen > retention_ns
     }
 
-    /// The kept observation with a dominant ray nearest to `t`, if within `window_ns`.
+    /// The kept observation with a dominant ray nearest to `t`, if within
+    /// `window_ns`: of the [`NEAREST_SPAN`] kept on either side of `t`, the
+    /// nearest with rays (the earlier on a tie).
     pub fn nearest(&self, t: Stamp, window_ns: i64) -> Option<&StoredObservation> {
-        // History is sorted by stamp: look around the insertion point.
-        let i = self.history.partition_point(|o| o.stamp < t);
-        let mut best: Option<&StoredObservation> = None;
-        let lo = i.saturating_sub(8);
-        let hi = (i + 8).min(self.history.len());
-        for o in self.history.range(lo..hi) {
-            if o.rays.is_empty() || (o.stamp - t).abs() > window_ns {
-                continue;
-            }
-            if best.is_none_or(|b| (o.stamp - t).abs() < (b.stamp - t).abs()) {
-                best = Some(o);
-            }
-        }
-        best
+        nearest_in(&self.history, t, window_ns)
     }
 }
+
+/// [`RobotEntry::nearest`] in a history sorted by stamp.
+fn nearest_in(history: &VecDeque<StoredObservation>, t: Stamp, window_ns: i64) -> Option<&StoredObservation> {
+    // `t` is usually the newest stamp of all, at or after this robot's
+    // newest: then the insertion point is the end, without a search.
+    let len = history.len();
+    let i = match history.back() {
+        Some(last) if last.stamp < t => len,
+        _ => history.partition_point(|o| o.stamp < t),
+    };
+    let has_ray = |o: &&StoredObservation| !o.rays.is_empty();
+    let within = |o: &&StoredObservation| (o.stamp - t).abs() <= window_ns;
+    // The nearest with rays before `t` and at or after it, walking out from `t`.
+    let before = history.range(i.saturating_sub(NEAREST_SPAN)..i).rev().find(has_ray).filter(within);
+    let after = history.range(i..(i + NEAREST_SPAN).min(len)).find(has_ray).filter(within);
+    match (before, after) {
+        (Some(b), Some(a)) => Some(if (a.stamp - t).abs() < (b.stamp - t).abs() { a } else { b }),
+        (b, a) => b.or(a),
+    }
+}
+
+/// How many kept observations on either side of a stamp [`RobotEntry::nearest`] looks at.
+pub const NEAREST_SPAN: usize = 8;
 
 /// Tracker indices of robots: the smallest free one is given, so indices stay
 /// below the number of robots known at once.
@@ -217,5 +229,70 @@ mod tests {
         p.give_back(0);
         assert_eq!(p.take(), 0);
         assert_eq!(p.take(), 4);
+    }
+
+    /// The nearest observation with rays among the `NEAREST_SPAN` on either
+    /// side of the insertion point, by a plain scan (the earlier on a tie).
+    fn nearest_by_scan(history: &VecDeque<StoredObservation>, t: Stamp, window_ns: i64) -> Option<Stamp> {
+        let i = history.iter().filter(|o| o.stamp < t).count();
+        let lo = i.saturating_sub(NEAREST_SPAN);
+        let hi = (i + NEAREST_SPAN).min(history.len());
+        let mut best: Option<&StoredObservation> = None;
+        for o in history.range(lo..hi) {
+            if o.rays.is_empty() || (o.stamp - t).abs() > window_ns {
+                continue;
+            }
+            if best.is_none_or(|b| (o.stamp - t).abs() < (b.stamp - t).abs()) {
+                best = Some(o);
+            }
+        }
+        best.map(|o| o.stamp)
+    }
+
+    #[test]
+    fn nearest_agrees_with_a_plain_scan() {
+        use nalgebra::{Point3, Unit, Vector3};
+        let ray = TaggedRay {
+            ray: Ray {
+                origin_in_map: Point3::origin(),
+                direction_in_map: Unit::new_normalize(Vector3::x()),
+                sigma_rad: 0.01,
+                origin_sigma_m: 0.0,
+                fold: None,
+            },
+            activity: 1.0,
+            track_id: 1,
+            signature: None,
+            aperture_m: None,
+        };
+        // Stamps 10 ms apart with gaps and equal neighbours; some without rays.
+        let mut state = 7u64;
+        let mut next = || {
+            state = state.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+            state >> 33
+        };
+        for _ in 0..40 {
+            let mut history = VecDeque::new();
+            let mut stamp = 1_000_000_000i64;
+            for _ in 0..(next() % 30) {
+                stamp += [0, 5_000_000, 10_000_000, 40_000_000][(next() % 4) as usize];
+                let rays = if next() % 3 == 0 { vec![] } else { vec![ray.clone()] };
+                history.push_back(StoredObservation {
+                    stamp: Stamp::from_ns(stamp),
+                    rays,
+                    received: Stamp::from_ns(stamp),
+                });
+            }
+            for _ in 0..50 {
+                let t = Stamp::from_ns(1_000_000_000 + (next() % 500) as i64 * 1_000_000);
+                for window_ns in [0, 5_000_000, 25_000_000, 1_000_000_000] {
+                    assert_eq!(
+                        nearest_in(&history, t, window_ns).map(|o| o.stamp),
+                        nearest_by_scan(&history, t, window_ns),
+                        "t {t:?} window {window_ns}"
+                    );
+                }
+            }
+        }
     }
 }
