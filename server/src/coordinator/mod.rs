@@ -595,21 +595,29 @@ impl Coordinator {
     /// Each live robot's observation nearest `t` within the alignment window
     /// (with rays), and robot ids by index.
     fn aligned_rays(&self, now: Stamp, t: Stamp) -> (Vec<AlignedRays>, HashMap<u32, RobotId>) {
-        let window_ns = self.config.alignment.window_ms as i64 * 1_000_000;
-        let stale_after_ns = self.stale_after_ns();
         let mut aligned = Vec::new();
         let mut ids = HashMap::new();
-        for (id, e) in &self.robots {
-            if e.liveness(now, stale_after_ns) != Liveness::Live {
-                continue;
-            }
-            let Some(o) = e.nearest(t, window_ns) else { continue };
-            if !o.rays.is_empty() {
-                aligned.push(AlignedRays { robot: e.index, stamp: o.stamp, rays: o.rays.clone() });
-                ids.insert(e.index, id.clone());
-            }
+        for (id, e, o) in self.nearest_of_live(now, t) {
+            aligned.push(AlignedRays { robot: e.index, stamp: o.stamp, rays: o.rays.clone() });
+            ids.insert(e.index, id.clone());
         }
         (aligned, ids)
+    }
+
+    /// Each live robot with its kept observation nearest to `t` within the
+    /// alignment window that has rays ([`RobotEntry::nearest`]), in the
+    /// robots' order.
+    fn nearest_of_live(
+        &self,
+        now: Stamp,
+        t: Stamp,
+    ) -> impl Iterator<Item = (&RobotId, &RobotEntry, &StoredObservation)> {
+        let window_ns = self.config.alignment.window_ms as i64 * 1_000_000;
+        let stale_after_ns = self.stale_after_ns();
+        self.robots
+            .iter()
+            .filter(move |(_, e)| e.liveness(now, stale_after_ns) == Liveness::Live)
+            .filter_map(move |(id, e)| Some((id, e, e.nearest(t, window_ns)?)))
     }
 
     /// The latest estimate of every live source (one source: the latest estimate).
@@ -637,16 +645,10 @@ impl Coordinator {
 
     /// Triangulates the rays aligned with `t`; also returns the newest stamp among them.
     fn triangulate_at(&mut self, now: Stamp, t: Stamp) -> Option<(Estimate, Stamp)> {
-        let window_ns = self.config.alignment.window_ms as i64 * 1_000_000;
-        let stale_after_ns = self.stale_after_ns();
         let mut robots = Vec::with_capacity(self.robots.len());
         let mut rays = Vec::with_capacity(self.robots.len());
         let mut newest = Stamp::ZERO;
-        for (id, e) in &self.robots {
-            if e.liveness(now, stale_after_ns) != Liveness::Live {
-                continue;
-            }
-            let Some(o) = e.nearest(t, window_ns) else { continue };
+        for (id, _, o) in self.nearest_of_live(now, t) {
             if let Some(ray) = o.dominant() {
                 robots.push(id.clone());
                 rays.push(*ray);
