@@ -326,7 +326,9 @@ impl Srp {
             ));
         }
         let band = Band { lo, hi };
-        let cc = CrossCorrelator::new(m, frame_len, band, radius, tables.windows.clone());
+        let mut cc = CrossCorrelator::new(m, frame_len, band, radius, tables.windows.clone());
+        let (lin_used, max_used) = tables.used_lags();
+        cc.restrict(&lin_used, &max_used);
         let compensation = config.diffuse_compensation;
         if !(compensation.is_finite() && (0.0..=2.0).contains(&compensation)) {
             return Err(bad("diffuse_compensation", format!("must be in 0..=2, got {compensation}")));

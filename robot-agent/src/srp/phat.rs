@@ -17,6 +17,10 @@ use rustfft::{Fft, FftPlanner};
 /// Bins processed together in the vectorized loops.
 const LANES: usize = 8;
 
+/// Per pair, a half-open range `(from, to)` of indices into its row of the
+/// correlation buffers.
+pub type LagSpans = Vec<(usize, usize)>;
+
 /// Frequency band, in FFT bins `lo..hi` (excluding DC and Nyquist).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct Band {
@@ -67,6 +71,11 @@ pub struct CrossCorrelator {
     /// Sliding maxima of `cc` over `±window[p]` lags.
     pub(super) cc_max: Vec<f32>,
     pub(super) window: Vec<usize>,
+    /// Per pair, the lags (row indices, half-open) whose `lin` and whose
+    /// `cc_max` a search reads: the rest of those rows is never computed.
+    /// The whole row unless [`Self::restrict`] narrowed them.
+    lin_used: LagSpans,
+    max_used: LagSpans,
     tmp: Vec<f32>,
     /// The CPU's vector instructions (see [`crate::simd`]).
     pub(super) arch: pulp::Arch,
@@ -110,10 +119,24 @@ impl CrossCorrelator {
             lin: vec![[0.0; 2]; pairs.len() * stride],
             cc_max: vec![0.0; pairs.len() * stride],
             tmp: vec![0.0; 2 * (stride + 2 * window.iter().copied().max().unwrap_or(0))],
+            lin_used: vec![(0, stride); window.len()],
+            max_used: vec![(0, stride); window.len()],
             window,
             pairs,
             arch: pulp::Arch::new(),
         }
+    }
+
+    /// Computes `lin` and `cc_max` of pair `p` only on the row indices
+    /// `lin[p]` and `max[p]` (half-open, clipped to the row): the entries a
+    /// search reads (see [`super::search::SearchTables::used_lags`]). A pair
+    /// whose microphones are close spans few lags, so most of its row is
+    /// never read. `cc` is still computed on every lag.
+    pub fn restrict(&mut self, lin: &[(usize, usize)], max: &[(usize, usize)]) {
+        assert!(lin.len() == self.pairs.len() && max.len() == self.pairs.len());
+        let clip = |&(a, b): &(usize, usize)| (a.min(self.stride), b.min(self.stride));
+        self.lin_used = lin.iter().map(clip).collect();
+        self.max_used = max.iter().map(clip).collect();
     }
 
     /// PHAT-normalizes the band of each channel's spectrum (`spectra`:
@@ -230,18 +253,25 @@ impl CrossCorrelator {
     #[inline(always)]
     fn finish_row(&mut self, p: usize) {
         let s = self.stride;
-        let row = &self.cc[p * s..(p + 1) * s];
-        let lin = &mut self.lin[p * s..(p + 1) * s];
-        for ((l, &a), &b) in lin.iter_mut().zip(row).zip(&row[1..]) {
-            *l = [a, b - a];
+        let (from, to) = self.lin_used[p];
+        if from < to {
+            let row = &self.cc[p * s..(p + 1) * s];
+            let lin = &mut self.lin[p * s..(p + 1) * s];
+            let end = to.min(s - 1);
+            for ((l, &a), &b) in lin[from..end].iter_mut().zip(&row[from..end]).zip(&row[from + 1..=end]) {
+                *l = [a, b - a];
+            }
+            if to == s {
+                lin[s - 1] = [row[s - 1], 0.0];
+            }
         }
-        lin[s - 1] = [row[s - 1], 0.0];
-        self.sliding_max(p);
+        let (from, to) = self.max_used[p];
+        self.sliding_max_range(p, from, to);
     }
 
     /// `cc_max[p][n] = max(cc[p][n−w..=n+w])` (clipped at the stored lags).
-    #[inline(always)]
-    pub(super) fn sliding_max(&mut self, p: usize) {
+    #[cfg(test)]
+    fn sliding_max(&mut self, p: usize) {
         self.sliding_max_range(p, 0, self.stride);
     }
 
@@ -302,15 +332,70 @@ impl CrossCorrelator {
         let hi = (c + 1 + half).min(s - 1);
         self.cc[p * s + lo..=p * s + hi].fill(0.0);
         let w = self.window[p];
-        // Only entries that read the zeroed lags change.
+        // Only entries that read the zeroed lags change (and only those a
+        // search reads are kept).
         let row = &self.cc[p * s..(p + 1) * s];
-        for q in lo.saturating_sub(1)..=hi {
+        let (lin_from, lin_to) = self.lin_used[p];
+        for q in lo.saturating_sub(1).max(lin_from)..(hi + 1).min(lin_to) {
             let next = if q + 1 < s { row[q + 1] } else { row[q] };
             self.lin[p * s + q] = [row[q], next - row[q]];
         }
         // Sliding maxima: exact bounds matter (stale ones would send the next
         // search back to this peak); only those within w of the zeroed lags change.
-        self.sliding_max_range(p, lo.saturating_sub(w), hi + w + 1);
+        let (max_from, max_to) = self.max_used[p];
+        self.zeroed_max(p, lo, hi, lo.saturating_sub(w).max(max_from), (hi + w + 1).min(max_to));
+    }
+
+    /// `cc_max[p][q]` for `q` in `from..to` after `cc[p][lo..=hi]` was zeroed,
+    /// every such `q` being within `w` of the zeroed lags (so up to `2w` lags
+    /// each side are read): each window
+    /// `[q−w, q+w]` then holds a zero, the lags of it left of `lo` and those
+    /// right of `hi`, so its maximum is `max(0, L, R)` with `L` a running
+    /// maximum leftward from `lo − 1` and `R` one rightward from `hi + 1`.
+    /// O(w) per pair instead of the general sliding maximum's O(w log w),
+    /// and the same values (a maximum does not depend on the order).
+    #[inline(always)]
+    fn zeroed_max(&mut self, p: usize, lo: usize, hi: usize, from: usize, to: usize) {
+        let s = self.stride;
+        let w = self.window[p];
+        if from >= to {
+            return;
+        }
+        debug_assert!(from + w >= lo && to <= hi + w + 1 && hi < s);
+        let row = &self.cc[p * s..(p + 1) * s];
+        let half = self.tmp.len() / 2;
+        let (left, right) = self.tmp.split_at_mut(half);
+        // left[k] = max(row[lo−1−k..lo]), right[k] = max(row[hi+1..=hi+1+k]).
+        let (mut m, mut n) = (f32::NEG_INFINITY, f32::NEG_INFINITY);
+        let left_len = (2 * w).min(lo);
+        for (k, l) in left[..left_len].iter_mut().enumerate() {
+            let x = row[lo - 1 - k];
+            m = if x > m { x } else { m };
+            *l = m;
+        }
+        let right_len = (2 * w).min(s - 1 - hi);
+        for (k, r) in right[..right_len].iter_mut().enumerate() {
+            let x = row[hi + 1 + k];
+            n = if x > n { x } else { n };
+            *r = n;
+        }
+        let dst = &mut self.cc_max[p * s..(p + 1) * s];
+        for (q, o) in dst.iter_mut().enumerate().take(to).skip(from) {
+            let mut v = 0.0f32;
+            // Window [q−w, q+w] clipped to the row; its part left of lo has
+            // lo − max(q−w, 0) lags, its part right of hi min(q+w, s−1) − hi.
+            let start = q.saturating_sub(w);
+            if start < lo {
+                let x = left[lo - 1 - start];
+                v = if x > v { x } else { v };
+            }
+            let end = (q + w).min(s - 1);
+            if end > hi {
+                let x = right[end - hi - 1];
+                v = if x > v { x } else { v };
+            }
+            *o = v;
+        }
     }
 }
 
@@ -386,6 +471,26 @@ mod tests {
             c.sliding_max(0);
             for q in 0..s {
                 assert_eq!(c.cc_max[q], brute(&c, w, q), "w={w} q={q}");
+            }
+            // After a suppression anywhere in the row (the edges too), the
+            // maxima near it are those of the zeroed row, the rest untouched.
+            for (t, half) in [(0.3f32, 1), (4.7, 1), (11.0, 2), ((s - 2) as f32 + 0.5, 1), (15.2, 0)] {
+                c.lin_used = vec![(0, s)];
+                c.max_used = vec![(0, s)];
+                for q in 0..s {
+                    c.cc[q] = ((q * 7919) % 23) as f32 - 11.0;
+                }
+                c.sliding_max_range(0, 0, s);
+                let before = c.cc_max.clone();
+                c.suppress(0, t, half);
+                let zc = t.floor() as usize;
+                let (zlo, zhi) = (zc.saturating_sub(half), (zc + 1 + half).min(s - 1));
+                assert!(c.cc[zlo..=zhi].iter().all(|&v| v == 0.0));
+                for q in 0..s {
+                    let near = q + w >= zlo && q <= zhi + w;
+                    let want = if near { brute(&c, w, q) } else { before[q] };
+                    assert_eq!(c.cc_max[q], want, "w={w} q={q} suppressed at {t} ±{half}");
+                }
             }
             // Part of a row, anywhere in it, leaves the rest alone.
             for (from, to) in [(0, 3), (5, 9), (s - 4, s), (2, s + 5)] {

@@ -18,6 +18,7 @@
 use nalgebra::Vector3;
 
 use super::grid::SphereGrid;
+use super::phat::LagSpans;
 use crate::array::{ArrayGeometry, SearchRegion};
 
 /// TDOA tables of the coarse and fine grids.
@@ -238,6 +239,21 @@ impl SearchTables {
     /// The correlation lag radius `R` these tables need.
     pub fn lag_radius(&self) -> usize {
         self.max_tdoa.ceil() as usize + self.windows.iter().copied().max().unwrap_or(0) + 2
+    }
+
+    /// Per pair, the row indices (half-open) of the correlator's `lin` and
+    /// of its `cc_max` that the searches read: `lin` at every fine point's
+    /// ⌊τ⌋ (its entry holds `cc[n]` and `cc[n+1] − cc[n]`), `cc_max` at every
+    /// coarse point's rounded lag. See [`super::phat::CrossCorrelator::restrict`].
+    pub fn used_lags(&self) -> (LagSpans, LagSpans) {
+        let span = |idx: &[u32], p: usize| {
+            let rows = idx.iter().skip(p).step_by(self.pairs).map(|&i| i as usize - p * self.stride);
+            rows.fold(None, |r: Option<(usize, usize)>, i| {
+                Some(r.map_or((i, i + 1), |(a, b)| (a.min(i), b.max(i + 1))))
+            })
+            .unwrap_or((0, 0))
+        };
+        (0..self.pairs).map(|p| (span(&self.fine_idx, p), span(&self.coarse_idx, p))).unzip()
     }
 
     /// Number of fine points searched.
