@@ -172,22 +172,55 @@ fn pairwise_angles<S: AsSensor>(sensors: &[S], x: &Point3<f64>) -> (Vec<(usize, 
         let best = best_pair_theta(&list);
         return (list, best);
     }
-    let dirs: Vec<Vector3<f64>> = sensors
-        .iter()
-        .map(|s| (s.sensor().origin - x).try_normalize(0.0).unwrap_or_else(Vector3::zeros))
-        .collect();
-    let mut best = (f64::INFINITY, 0, 1);
-    for i in 0..n {
-        for j in (i + 1)..n {
-            let c = dirs[i].dot(&dirs[j]).abs();
-            if c < best.0 {
-                best = (c, i, j);
-            }
-        }
-    }
-    let (_, i, j) = best;
+    let (i, j) = most_perpendicular_pair(
+        sensors.iter().map(|s| (s.sensor().origin - x).try_normalize(0.0).unwrap_or_else(Vector3::zeros)),
+    );
     let theta = angle_at_deg(x, &sensors[i].sensor().origin, &sensors[j].sensor().origin);
     (vec![(i, j, theta)], theta)
+}
+
+/// The first pair `(i, j)`, `i < j`, in lexical order whose unit vectors
+/// have the least `|cos|` (the θ nearest 90°), for at least two vectors.
+///
+/// Two passes, so that the N²/2 products run without a branch per pair: the
+/// least `|cos|` of each row `i` (over `j > i`, in independent lanes that
+/// vectorize; a minimum does not depend on the order), the first row that
+/// holds the overall least, then the first `j` of that row reaching it
+/// (the same expression, so the same value).
+fn most_perpendicular_pair(dirs: impl Iterator<Item = Vector3<f64>>) -> (usize, usize) {
+    const LANES: usize = 4;
+    let (mut xs, mut ys, mut zs) = (Vec::new(), Vec::new(), Vec::new());
+    for d in dirs {
+        xs.push(d.x);
+        ys.push(d.y);
+        zs.push(d.z);
+    }
+    let n = xs.len();
+    let cos = |i: usize, j: usize| (xs[i] * xs[j] + ys[i] * ys[j] + zs[i] * zs[j]).abs();
+    let mut best = (f64::INFINITY, 0);
+    for i in 0..n.saturating_sub(1) {
+        let (x, y, z) = (xs[i], ys[i], zs[i]);
+        let (bx, by, bz) = (&xs[i + 1..], &ys[i + 1..], &zs[i + 1..]);
+        let mut acc = [f64::INFINITY; LANES];
+        let chunks = bx.len() / LANES * LANES;
+        for q in (0..chunks).step_by(LANES) {
+            for l in 0..LANES {
+                let c = (x * bx[q + l] + y * by[q + l] + z * bz[q + l]).abs();
+                acc[l] = if c < acc[l] { c } else { acc[l] };
+            }
+        }
+        for q in chunks..bx.len() {
+            let c = (x * bx[q] + y * by[q] + z * bz[q]).abs();
+            acc[0] = if c < acc[0] { c } else { acc[0] };
+        }
+        let row = acc.iter().fold(f64::INFINITY, |m, &c| if c < m { c } else { m });
+        if row < best.0 {
+            best = (row, i);
+        }
+    }
+    let i = best.1;
+    let j = (i + 1..n).find(|&j| cos(i, j) == best.0).unwrap_or(i + 1);
+    (i, j)
 }
 
 /// The pairwise θ closest to 90° (0 when there is no pair).
@@ -228,6 +261,45 @@ mod tests {
                 origin_sigma_m: 0.0,
             })
             .collect()
+    }
+
+    #[test]
+    fn the_most_perpendicular_pair_is_the_first_least_of_a_plain_scan() {
+        use rand::{RngExt, SeedableRng};
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(7);
+        for n in [2usize, 3, 5, 9, 10, 33, 128] {
+            for trial in 0..20 {
+                let mut dirs: Vec<Vector3<f64>> = (0..n)
+                    .map(|_| {
+                        let v = Vector3::new(rng.random_range(-1.0..1.0), rng.random_range(-1.0..1.0), 0.3);
+                        v.normalize()
+                    })
+                    .collect();
+                if trial % 4 == 1 {
+                    // Repeated directions: ties, which the first pair in lexical order wins.
+                    for k in (1..n).step_by(2) {
+                        dirs[k] = dirs[k - 1];
+                    }
+                }
+                if trial % 4 == 2 {
+                    dirs[n - 1] = Vector3::zeros(); // a robot on the point: cos 0 with everyone
+                }
+                let cos = |a: &Vector3<f64>, b: &Vector3<f64>| (a.x * b.x + a.y * b.y + a.z * b.z).abs();
+                let mut want = (f64::INFINITY, 0, 1);
+                for i in 0..n {
+                    for j in i + 1..n {
+                        if cos(&dirs[i], &dirs[j]) < want.0 {
+                            want = (cos(&dirs[i], &dirs[j]), i, j);
+                        }
+                    }
+                }
+                assert_eq!(
+                    most_perpendicular_pair(dirs.iter().copied()),
+                    (want.1, want.2),
+                    "n {n} trial {trial}"
+                );
+            }
+        }
     }
 
     #[test]
