@@ -3,6 +3,7 @@
 //! replay all run: hellos, observations, estimates, liveness, and the planning
 //! cycle's commands.
 
+use crate::common::undeclared_array;
 use nalgebra::{Isometry3, Point3, Unit, Vector3};
 use soundmap_proto::wire;
 use soundmap_proto::{
@@ -21,22 +22,10 @@ const MS: i64 = 1_000_000;
 
 const SOURCE: Point3<f64> = Point3::new(0.0, 0.0, 1.2);
 
-/// The array every robot carries: 0.48 m above its base.
-fn array() -> ArrayInfo {
-    ArrayInfo {
-        base_from_array: Isometry3::translation(0.0, 0.0, 0.48),
-        microphone_count: 16,
-        preset: None,
-        microphone_positions: vec![],
-        srp_band_hz: None,
-        direct_path_elevations: false,
-    }
-}
-
 fn hello(id: &str) -> Hello {
     Hello {
         robot_id: RobotId::parse(id, "hello.robot_id").unwrap(),
-        array: array(),
+        array: undeclared_array(),
         software_version: "t".into(),
         signature_bands: None,
         max_tracks: None,
@@ -54,7 +43,7 @@ fn connect(c: &mut Coordinator, now: Stamp, id: &str) -> ConnId {
 /// facing +x, stamped `stamp` with `sequence`.
 fn observation(sequence: u64, stamp: Stamp, base: Point3<f64>, source: &Point3<f64>) -> Observation {
     let map_from_base = Isometry3::translation(base.x, base.y, base.z);
-    let map_from_array = map_from_base * array().base_from_array;
+    let map_from_array = map_from_base * undeclared_array().base_from_array;
     let direction_in_array = Unit::new_normalize((map_from_array.inverse() * source).coords);
     Observation {
         sequence,
@@ -448,7 +437,7 @@ fn folded_published(
         microphone_positions: octagon(),
         srp_band_hz: band,
         direct_path_elevations,
-        ..array()
+        ..undeclared_array()
     };
     let conns: Vec<_> = ["a", "b"]
         .iter()

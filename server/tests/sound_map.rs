@@ -5,29 +5,19 @@
 
 use std::collections::BTreeMap;
 
+use crate::common::undeclared_array;
 use nalgebra::{Isometry3, Point3, Unit, UnitQuaternion};
-use soundmap_proto::{ArrayInfo, Hello, Observation, RobotId, Stamp, TrackedDoa};
+use soundmap_proto::{Hello, Observation, RobotId, Stamp, TrackedDoa};
 use soundmap_server::CoordinatorConfig;
 use soundmap_server::coordinator::{ConnId, Coordinator, Estimate};
 
 const T0: Stamp = Stamp::from_ns(1_767_225_600_000_000_000);
 const MS: i64 = 1_000_000;
 
-fn array() -> ArrayInfo {
-    ArrayInfo {
-        base_from_array: Isometry3::translation(0.0, 0.0, 0.48),
-        microphone_count: 16,
-        preset: None,
-        microphone_positions: vec![],
-        srp_band_hz: None,
-        direct_path_elevations: false,
-    }
-}
-
 fn hello(id: &str) -> Hello {
     Hello {
         robot_id: RobotId::parse(id, "hello.robot_id").unwrap(),
-        array: array(),
+        array: undeclared_array(),
         software_version: "t".into(),
         signature_bands: None,
         max_tracks: None,
@@ -68,7 +58,7 @@ fn observe_with(
 ) {
     r.sequence += 1;
     let map_from_base = Isometry3::translation(r.base.x, r.base.y, r.base.z);
-    let map_from_array = map_from_base * array().base_from_array;
+    let map_from_array = map_from_base * undeclared_array().base_from_array;
     let doas = heard
         .iter()
         .map(|&(track_id, source)| {

@@ -269,13 +269,8 @@ impl CrossCorrelator {
         self.sliding_max_range(p, from, to);
     }
 
-    /// `cc_max[p][n] = max(cc[p][n−w..=n+w])` (clipped at the stored lags).
-    #[cfg(test)]
-    fn sliding_max(&mut self, p: usize) {
-        self.sliding_max_range(p, 0, self.stride);
-    }
-
-    /// [`Self::sliding_max`] for the lags `from..to` of pair `p` only.
+    /// `cc_max[p][n] = max(cc[p][n−w..=n+w])` (clipped at the stored lags)
+    /// for the lags `n` in `from..to` of pair `p` only.
     ///
     /// The lags it reads, `from−w..to+w` clipped to the row, are padded with
     /// −∞ up to `w` entries on each side, so that one formula holds
@@ -468,7 +463,7 @@ mod tests {
         };
         for w in 0..8 {
             c.window[0] = w;
-            c.sliding_max(0);
+            c.sliding_max_range(0, 0, s);
             for q in 0..s {
                 assert_eq!(c.cc_max[q], brute(&c, w, q), "w={w} q={q}");
             }

@@ -43,6 +43,12 @@ pub fn array() -> ArrayInfo {
     }
 }
 
+/// The array of the in-process coordinator tests' robots: 16 microphones
+/// 0.48 m above the base, no preset, positions or band declared.
+pub fn undeclared_array() -> ArrayInfo {
+    ArrayInfo { preset: None, ..array() }
+}
+
 /// A hello with `id` as given (not validated here: tests send bad ids too).
 pub fn hello(id: &str) -> wire::RobotMessage {
     let mut h = Hello {
