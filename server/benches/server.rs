@@ -705,14 +705,7 @@ fn bench_service(quick: bool, tracking: bool, arrays: Arrays) {
 /// The array the in-process coordinator benches' robots declare: 16
 /// microphones 0.48 m above the base, positions and band undeclared.
 fn bench_array() -> ArrayInfo {
-    ArrayInfo {
-        base_from_array: Isometry3::translation(0.0, 0.0, 0.48),
-        microphone_count: 16,
-        preset: None,
-        microphone_positions: vec![],
-        srp_band_hz: None,
-        direct_path_elevations: false,
-    }
+    ArrayInfo { preset: None, ..soundmap_server::loadgen::array() }
 }
 
 /// Connects robots `r0` … `r{n-1}` to `c` at `t0`, each with `array` and up to
