@@ -79,6 +79,25 @@ pub enum Wavefront {
     },
 }
 
+/// The phasors of one microphone at the band's first `LANES` bins (moved
+/// on by `LANES` bins at a time) and the step that moves them.
+#[derive(Clone, Copy, Debug, Default)]
+struct Phasors {
+    pr: [f32; LANES],
+    pi: [f32; LANES],
+    c8: f32,
+    s8: f32,
+}
+
+/// One microphone's part of an evaluation: its phasors and the weights of
+/// its `Y` in each accumulator (see [`Refiner::bin_sums`]).
+#[derive(Clone, Copy, Debug)]
+struct MicTerms {
+    mic: usize,
+    phasors: Phasors,
+    w: [f32; ACCS],
+}
+
 /// Beamformer-domain Newton refinement.
 #[derive(Debug)]
 pub struct Refiner {
@@ -96,13 +115,15 @@ pub struct Refiner {
     /// ωₖ and ωₖ² per bin (rad/s), padded with zeros.
     omega: Vec<f32>,
     omega2: Vec<f32>,
-    /// Per-bin accumulators, `[acc][re | im][padded]`.
+    /// Scratch for the projection: the beamformer `B`, re and im.
     sums: Vec<f32>,
     /// Scratch: one microphone's Y = X̃·phasor, re and im.
     yr: Vec<f32>,
     yi: Vec<f32>,
     /// Scratch: phasors of every microphone (for the projection).
     ph: Vec<f32>,
+    /// Scratch: each microphone's terms of an evaluation.
+    terms: Vec<MicTerms>,
     /// Beamformer evaluations since the counter was last read.
     pub(super) evaluations: usize,
     /// The diffuse field's part of the power, and how much of it each
@@ -141,10 +162,11 @@ impl Refiner {
             padded,
             omega2: omega.iter().map(|w| w * w).collect(),
             omega,
-            sums: vec![0.0; ACCS * 2 * padded],
+            sums: vec![0.0; 2 * padded],
             yr: vec![0.0; padded],
             yi: vec![0.0; padded],
             ph: vec![0.0; 2 * positions.len() * padded],
+            terms: Vec::with_capacity(positions.len()),
             evaluations: 0,
             diffuse: None,
             diffuse_weight: 0.0,
@@ -162,12 +184,11 @@ impl Refiner {
         self
     }
 
-    /// Writes `Y[k] = X̃ᵢ[k] e^{−jωₖ a}` of microphone `i` to `yr`/`yi`, and
-    /// the phasors to `ph` when `keep_phasors`.
+    /// The phasors `e^{−jωₖ a}` of the band's first `LANES` bins and the
+    /// `LANES`-bin step that moves them on (one `sin_cos`: the start and the
+    /// step are powers of `e^{−jΔω a}`).
     #[inline(always)]
-    fn steer(&mut self, cc: &CrossCorrelator, i: usize, a: f64, keep_phasors: bool) {
-        let (k, padded) = (self.bins, self.padded);
-        // One sincos: e^{−jΔω a}; the start and the 8-bin step are its powers.
+    fn phasors(&self, a: f64) -> Phasors {
         let (s1, c1) = (-self.domega * a).sin_cos();
         let cmul = |(ar, ai): (f64, f64), (br, bi): (f64, f64)| (ar * br - ai * bi, ar * bi + ai * br);
         let mut c0s0 = (1.0, 0.0);
@@ -186,7 +207,15 @@ impl Refiner {
             pi[l] = m as f32;
             (r, m) = (r * c1 - m * s1, r * s1 + m * c1);
         }
-        let (c8, s8) = (c8 as f32, s8 as f32);
+        Phasors { pr, pi, c8: c8 as f32, s8: s8 as f32 }
+    }
+
+    /// Writes `Y[k] = X̃ᵢ[k] e^{−jωₖ a}` of microphone `i` to `yr`/`yi`, and
+    /// the phasors to `ph` when `keep_phasors`.
+    #[inline(always)]
+    fn steer(&mut self, cc: &CrossCorrelator, i: usize, a: f64, keep_phasors: bool) {
+        let (k, padded) = (self.bins, self.padded);
+        let Phasors { mut pr, mut pi, c8, s8 } = self.phasors(a);
         let xr = &cc.phat_re[i * padded..(i + 1) * padded];
         let xi = &cc.phat_im[i * padded..(i + 1) * padded];
         let (phr, phi) = self.ph[2 * i * padded..2 * (i + 1) * padded].split_at_mut(padded);
@@ -272,17 +301,14 @@ impl Refiner {
     fn local_body(&mut self, cc: &CrossCorrelator, gains: &[f32], at: At<'_>) -> Local {
         let At { d, e1, e2, curvature, t, with_range } = at;
         self.evaluations += 1;
-        let padded = self.padded;
-        let accs = if with_range { ACCS } else { 7 };
-        self.sums[..accs * 2 * padded].fill(0.0);
-        for i in 0..self.positions.len() {
-            let g = gains[i];
+        let mut terms = std::mem::take(&mut self.terms);
+        terms.clear();
+        for (i, &g) in gains.iter().enumerate().take(self.positions.len()) {
             if g == 0.0 {
                 continue;
             }
             let [a, b, c, k, x] = self.delay_terms(i, d, e1, e2, t);
             let (b, c, k) = (b as f32, c as f32, k as f32);
-            self.steer(cc, i, a, false);
             let ac = if curvature { x as f32 } else { 0.0 };
             let w = [
                 g,
@@ -297,20 +323,15 @@ impl Refiner {
                 g * c * k,
                 g * k * k,
             ];
-            for (acc, &wt) in w.iter().enumerate().take(accs) {
-                if wt == 0.0 {
-                    continue;
-                }
-                let (re, im) = self.sums[acc * 2 * padded..(acc + 1) * 2 * padded].split_at_mut(padded);
-                for (r, &y) in re.iter_mut().zip(&self.yr) {
-                    *r += wt * y;
-                }
-                for (m, &y) in im.iter_mut().zip(&self.yi) {
-                    *m += wt * y;
-                }
-            }
+            terms.push(MicTerms { mic: i, phasors: self.phasors(a), w });
         }
-        let v = if with_range { self.bin_sums::<true>() } else { self.bin_sums::<false>() };
+        let v = match (curvature, with_range) {
+            (false, false) => self.bin_sums::<false, false>(cc, &mut terms),
+            (true, false) => self.bin_sums::<true, false>(cc, &mut terms),
+            (false, true) => self.bin_sums::<false, true>(cc, &mut terms),
+            (true, true) => self.bin_sums::<true, true>(cc, &mut terms),
+        };
+        self.terms = terms;
         Local {
             power: v[0],
             grad: [2.0 * v[1], 2.0 * v[2], 2.0 * v[6]],
@@ -319,31 +340,62 @@ impl Refiner {
         }
     }
 
-    /// Per bin, from the accumulators: B, its derivatives and the power's,
-    /// summed over bins in lanes: `[Σ|B|², Σ Re B*B_u, Σ Re B*B_v, ½P_uu, ½P_uv,
-    /// ½P_vv]`, then with `RANGE` `[Σ Re B*B_t, ½P_ut, ½P_vt, ½P_tt]` (0 without).
+    /// The beamformer's sums and the power's derivatives, one chunk of
+    /// `LANES` bins at a time: per chunk, every microphone's
+    /// `Yᵢ = X̃ᵢ·e^{−jωₖaᵢ}` is weighed into the accumulators (Σ Y, Σ aY,
+    /// Σ bY, Σ cY, Σ b²Y, Σ bcY, Σ c²Y, and with `RANGE` Σ kY, Σ bkY, Σ ckY,
+    /// Σ k²Y; `CURV` keeps Σ aY, which linear coordinates leave at 0), which
+    /// stay in registers, and then folded into the lanes' sums
+    /// `[Σ|B|², Σ Re B*B_u, Σ Re B*B_v, ½P_uu, ½P_uv, ½P_vv]`, with `RANGE`
+    /// `[Σ Re B*B_t, ½P_ut, ½P_vt, ½P_tt]` (0 without). `terms` (one per
+    /// microphone with a gain) have their phasors moved on chunk by chunk.
     #[inline(always)]
-    fn bin_sums<const RANGE: bool>(&self) -> [f64; 10] {
+    fn bin_sums<const CURV: bool, const RANGE: bool>(
+        &self,
+        cc: &CrossCorrelator,
+        terms: &mut [MicTerms],
+    ) -> [f64; 10] {
         let padded = self.padded;
-        let s = |acc: usize| -> (&[f32], &[f32]) {
-            self.sums[acc * 2 * padded..(acc + 1) * 2 * padded].split_at(padded)
-        };
-        let ((b_r, b_i), (sa_r, sa_i), (sb_r, sb_i), (sc_r, sc_i)) = (s(0), s(1), s(2), s(3));
-        let ((sbb_r, sbb_i), (sbc_r, sbc_i), (scc_r, scc_i)) = (s(4), s(5), s(6));
-        let ((sk_r, sk_i), (sbk_r, sbk_i), (sck_r, sck_i), (skk_r, skk_i)) = (s(7), s(8), s(9), s(10));
         let mut acc = [[0f32; LANES]; 10];
+        let used = |a: usize| (a != 1 || CURV) && (a < 7 || RANGE);
         for base in (0..padded).step_by(LANES) {
+            let mut sr = [[0f32; LANES]; ACCS];
+            let mut si = [[0f32; LANES]; ACCS];
+            for term in terms.iter_mut() {
+                let at = term.mic * padded + base;
+                let xr = &cc.phat_re[at..at + LANES];
+                let xi = &cc.phat_im[at..at + LANES];
+                let Phasors { pr, pi, c8, s8 } = &mut term.phasors;
+                let mut yr = [0f32; LANES];
+                let mut yi = [0f32; LANES];
+                for l in 0..LANES {
+                    yr[l] = xr[l] * pr[l] - xi[l] * pi[l];
+                    yi[l] = xr[l] * pi[l] + xi[l] * pr[l];
+                    let nr = pr[l] * *c8 - pi[l] * *s8;
+                    pi[l] = pr[l] * *s8 + pi[l] * *c8;
+                    pr[l] = nr;
+                }
+                for a in (0..ACCS).filter(|&a| used(a)) {
+                    let wt = term.w[a];
+                    for l in 0..LANES {
+                        sr[a][l] += wt * yr[l];
+                        si[a][l] += wt * yi[l];
+                    }
+                }
+            }
             for l in 0..LANES {
                 let k = base + l;
                 let (om, om2) = (self.omega[k], self.omega2[k]);
-                let (br, bi) = (b_r[k], b_i[k]);
+                let (br, bi) = (sr[0][l], si[0][l]);
+                let (sa_r, sa_i, sb_r, sb_i, sc_r, sc_i) =
+                    (sr[1][l], si[1][l], sr[2][l], si[2][l], sr[3][l], si[3][l]);
                 // B_u = −jω Σ bY, B_v = −jω Σ cY
-                let (bur, bui) = (om * sb_i[k], -om * sb_r[k]);
-                let (bvr, bvi) = (om * sc_i[k], -om * sc_r[k]);
+                let (bur, bui) = (om * sb_i, -om * sb_r);
+                let (bvr, bvi) = (om * sc_i, -om * sc_r);
                 // B_uu = −ω² Σ b²Y + jω Σ aY, B_vv likewise, B_uv = −ω² Σ bcY
-                let (buur, buui) = (-om2 * sbb_r[k] - om * sa_i[k], -om2 * sbb_i[k] + om * sa_r[k]);
-                let (bvvr, bvvi) = (-om2 * scc_r[k] - om * sa_i[k], -om2 * scc_i[k] + om * sa_r[k]);
-                let (buvr, buvi) = (-om2 * sbc_r[k], -om2 * sbc_i[k]);
+                let (buur, buui) = (-om2 * sr[4][l] - om * sa_i, -om2 * si[4][l] + om * sa_r);
+                let (bvvr, bvvi) = (-om2 * sr[6][l] - om * sa_i, -om2 * si[6][l] + om * sa_r);
+                let (buvr, buvi) = (-om2 * sr[5][l], -om2 * si[5][l]);
                 acc[0][l] += br * br + bi * bi;
                 acc[1][l] += br * bur + bi * bui;
                 acc[2][l] += br * bvr + bi * bvi;
@@ -352,10 +404,10 @@ impl Refiner {
                 acc[5][l] += bvr * bvr + bvi * bvi + br * bvvr + bi * bvvi;
                 if RANGE {
                     // B_t = −jω Σ kY; B_ut = −ω² Σ bkY, B_vt = −ω² Σ ckY, B_tt = −ω² Σ k²Y
-                    let (btr, bti) = (om * sk_i[k], -om * sk_r[k]);
-                    let (butr, buti) = (-om2 * sbk_r[k], -om2 * sbk_i[k]);
-                    let (bvtr, bvti) = (-om2 * sck_r[k], -om2 * sck_i[k]);
-                    let (bttr, btti) = (-om2 * skk_r[k], -om2 * skk_i[k]);
+                    let (btr, bti) = (om * si[7][l], -om * sr[7][l]);
+                    let (butr, buti) = (-om2 * sr[8][l], -om2 * si[8][l]);
+                    let (bvtr, bvti) = (-om2 * sr[9][l], -om2 * si[9][l]);
+                    let (bttr, btti) = (-om2 * sr[10][l], -om2 * si[10][l]);
                     acc[6][l] += br * btr + bi * bti;
                     acc[7][l] += bur * btr + bui * bti + br * butr + bi * buti;
                     acc[8][l] += bvr * btr + bvi * bti + br * bvtr + bi * bvti;
