@@ -3,8 +3,10 @@
 //!
 //! Per frame ([`Srp::process`]):
 //! 1. PHAT-whiten each channel's spectrum on the band and compute the
-//!    GCC-PHAT of every microphone pair by inverse FFT, two pairs per complex
-//!    FFT, keeping only the lags a direction can produce ([`phat`]).
+//!    GCC-PHAT of every microphone pair by inverse FFT, summed per baseline
+//!    (pairs displaced by the same vector share one row, since the steered
+//!    response only reads their sum), two rows per complex FFT, keeping only
+//!    the lags a direction can produce ([`phat`]).
 //! 2. Find the best direction on the fine icosphere by a coarse → fine branch
 //!    and bound over max-filtered correlations, as ODAS's SRP-PHAT-HSDA does
 //!    ([`search`]); or, for reference, scan every fine point.
@@ -13,7 +15,7 @@
 //!    so the accuracy does not depend on the grid spacing (nor on an
 //!    interpolation of the correlations).
 //! 4. Up to `max_sources` potential sources: after each peak, zero every
-//!    pair's correlation around the peak's TDOA (ODAS's suppression) and
+//!    row's correlation around the peak's TDOA (ODAS's suppression) and
 //!    search again, away from the peaks already found; a later peak is
 //!    refined and scored after projecting the earlier sources out of the
 //!    whitened spectra, so a strong source's sidelobes do not come back as
@@ -233,6 +235,8 @@ pub struct Srp {
     refiner: Refiner,
     /// `τₚ(d) = pair_axes[p]·d` samples.
     pair_axes: Vec<Vector3<f64>>,
+    /// The same for the correlator's rows (one per baseline).
+    row_axes: Vec<Vector3<f64>>,
     mics: Vec<crate::array::Microphone>,
     gains: Vec<f32>,
     found: Vec<Vector3<f64>>,
@@ -312,8 +316,15 @@ impl Srp {
         let pair_mics: Vec<(usize, usize)> = (0..m).flat_map(|i| (i + 1..m).map(move |j| (i, j))).collect();
         let pair_axes: Vec<Vector3<f64>> =
             pair_mics.iter().map(|&(i, j)| (positions[j] - positions[i]) * (fs / c)).collect();
+        // One correlation row per baseline (`phat`, module docs); a pair of
+        // directional microphones weighs its own correlation, so keeps its own row.
+        let directional = array.microphones.iter().any(|m| m.axis_in_array.is_some());
+        let rows = if directional { phat::pair_rows(m) } else { phat::baseline_rows(&positions) };
+        let row_mics: Vec<(usize, usize)> = rows.iter().map(|r| r[0]).collect();
+        let row_axes: Vec<Vector3<f64>> =
+            row_mics.iter().map(|&(i, j)| (positions[j] - positions[i]) * (fs / c)).collect();
         let tables =
-            SearchTables::new(array, &pair_axes, &pair_mics, &region, config.coarse_level, config.fine_level);
+            SearchTables::new(array, &row_axes, &row_mics, &region, config.coarse_level, config.fine_level);
         let radius = tables.lag_radius();
         if radius >= frame_len / 2 {
             return Err(bad(
@@ -326,7 +337,7 @@ impl Srp {
             ));
         }
         let band = Band { lo, hi };
-        let mut cc = CrossCorrelator::new(m, frame_len, band, radius, tables.windows.clone());
+        let mut cc = CrossCorrelator::new(m, frame_len, band, radius, rows, tables.windows.clone());
         let (lin_used, max_used) = tables.used_lags();
         cc.restrict(&lin_used, &max_used);
         let compensation = config.diffuse_compensation;
@@ -409,6 +420,7 @@ impl Srp {
             tables,
             refiner,
             pair_axes,
+            row_axes,
             mics: array.microphones.clone(),
             gains: vec![1.0; m],
             found: Vec::with_capacity(config.max_sources),
@@ -721,16 +733,16 @@ impl Srp {
         }
     }
 
-    /// Zeroes every pair's correlation around the TDOAs of direction `d`.
+    /// Zeroes every row's correlation around the TDOAs of direction `d`.
     fn suppress(&mut self, d: &Unit<Vector3<f64>>) {
-        crate::simd::run(self.cc.arch, Suppress { cc: &mut self.cc, pair_axes: &self.pair_axes, d })
+        crate::simd::run(self.cc.arch, Suppress { cc: &mut self.cc, row_axes: &self.row_axes, d })
     }
 }
 
 /// [`Srp::suppress`] as a vectorized kernel.
 struct Suppress<'a> {
     cc: &'a mut CrossCorrelator,
-    pair_axes: &'a [Vector3<f64>],
+    row_axes: &'a [Vector3<f64>],
     d: &'a Vector3<f64>,
 }
 
@@ -740,7 +752,7 @@ impl crate::simd::Kernel for Suppress<'_> {
     #[inline(always)]
     fn run(self) {
         let r = self.cc.lag_radius as f64;
-        for (p, axis) in self.pair_axes.iter().enumerate() {
+        for (p, axis) in self.row_axes.iter().enumerate() {
             let t = (axis.dot(self.d) + r) as f32;
             self.cc.suppress(p, t, 1);
         }

@@ -7,19 +7,73 @@
 //! so a noise-free plane wave gives `ccₚ = 1` at its lag and `ccₚ ≈ 0` for
 //! incoherent noise. A plane wave from direction `d` peaks at
 //! `τₚ(d) = (pⱼ − pᵢ)·d · fs/c` samples (the pair's TDOA), see [`super::search`].
-//! Lags `−R..=R` are kept, stored at index `p·stride + (n + R)`.
+//!
+//! **Rows.** What is stored is one row per *baseline*, not per pair: pairs
+//! whose microphones are displaced by the same vector (a rectangular or
+//! circular ring has many: opposite sides, parallel chords) have the same
+//! TDOA in every direction, so the steered response only ever reads the sum
+//! of their correlations, at the same lag. A row `r` sums the pairs
+//! `(a, b)` it lists, each ordered so that `p_b − p_a` is the row's baseline
+//! (a pair met reversed contributes `X̃_b X̃_a*`, the conjugate, i.e. its
+//! correlation mirrored in lag), and its correlation is the inverse FFT of
+//! the summed cross-spectra: `cc_r = Σ_{(a,b) ∈ r} cc_ab`, exactly the sum
+//! of the pairs' correlations but computed once (the 16SoundsUSB rings: 88
+//! rows for 120 pairs). The sliding maximum of a summed row is at most the
+//! sum of its pairs' maxima, so the coarse bounds are tighter too, and still
+//! bounds. With one pair per row this is plain per-pair GCC-PHAT.
+//! Lags `−R..=R` are kept, stored at index `r·stride + (n + R)`.
 
 use std::sync::Arc;
 
+use nalgebra::Vector3;
 use rustfft::num_complex::Complex;
 use rustfft::{Fft, FftPlanner};
 
 /// Bins processed together in the vectorized loops.
 const LANES: usize = 8;
 
-/// Per pair, a half-open range `(from, to)` of indices into its row of the
+/// Per row, a half-open range `(from, to)` of indices into it in the
 /// correlation buffers.
 pub type LagSpans = Vec<(usize, usize)>;
+
+/// The correlator's rows: each lists the ordered microphone pairs `(a, b)`
+/// whose cross-spectra `X̃_a X̃_b*` it sums (see the module docs).
+pub type PairRows = Vec<Vec<(usize, usize)>>;
+
+/// One row per pair `(i, j)`, `i < j`, in lexicographic order.
+pub fn pair_rows(mics: usize) -> PairRows {
+    (0..mics).flat_map(|i| (i + 1..mics).map(move |j| vec![(i, j)])).collect()
+}
+
+/// Displacements closer than this (m) are the same baseline: far below any
+/// array's manufacturing tolerance, far above rounding in its coordinates.
+const SAME_BASELINE_M: f64 = 1e-9;
+
+/// The pairs `(i, j)`, `i < j`, grouped by baseline `p_j − p_i` (see the
+/// module docs): rows in the order of their first pair in lexicographic
+/// order, each row's pairs in that order too, a pair whose baseline is the
+/// row's reversed entered as `(j, i)`.
+pub fn baseline_rows(positions: &[Vector3<f64>]) -> PairRows {
+    let m = positions.len();
+    let mut rows: PairRows = Vec::new();
+    let mut axes: Vec<Vector3<f64>> = Vec::new();
+    for i in 0..m {
+        for j in i + 1..m {
+            let b = positions[j] - positions[i];
+            let same = |a: &Vector3<f64>| (a - b).norm() < SAME_BASELINE_M;
+            let reversed = |a: &Vector3<f64>| (a + b).norm() < SAME_BASELINE_M;
+            if let Some(r) = axes.iter().position(same) {
+                rows[r].push((i, j));
+            } else if let Some(r) = axes.iter().position(reversed) {
+                rows[r].push((j, i));
+            } else {
+                axes.push(b);
+                rows.push(vec![(i, j)]);
+            }
+        }
+    }
+    rows
+}
 
 /// Frequency band, in FFT bins `lo..hi` (excluding DC and Nyquist).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -42,10 +96,10 @@ impl Band {
     }
 }
 
-/// GCC-PHAT of all pairs for one frame.
+/// GCC-PHAT of all pairs for one frame, one row per baseline.
 pub struct CrossCorrelator {
     pub(super) mics: usize,
-    pub(super) pairs: Vec<(usize, usize)>,
+    pub(super) rows: PairRows,
     pub(super) band: Band,
     frame_len: usize,
     /// Bins per microphone in `phat_re`/`phat_im` (K rounded up to 8, zero-padded).
@@ -55,23 +109,26 @@ pub struct CrossCorrelator {
     pub(super) phat_im: Vec<f32>,
     /// Σ |X̃ᵢ[k]|² over bins, per microphone (K, or less for silent bins).
     pub(super) phat_energy: Vec<f32>,
-    /// Complex inverse FFT of `frame_len`: two pairs' correlations per call,
+    /// Complex inverse FFT of `frame_len`: two rows' correlations per call,
     /// as the real and imaginary parts.
     ifft: Arc<dyn Fft<f32>>,
     spec: Vec<Complex<f32>>,
     scratch: Vec<Complex<f32>>,
+    /// Two rows' summed cross-spectra on the band: `[re₁, im₁, re₂, im₂]`,
+    /// `padded` bins each.
+    cross: Vec<f32>,
     /// Largest lag kept, samples.
     pub(super) lag_radius: usize,
-    /// Entries per pair in `cc` / `cc_max` (2R + 2, one guard entry).
+    /// Entries per row in `cc` / `cc_max` (2R + 2, one guard entry).
     pub(super) stride: usize,
-    /// Correlations, `pairs × stride`.
+    /// Correlations, `rows × stride`.
     pub(super) cc: Vec<f32>,
     /// `[cc[n], cc[n+1] − cc[n]]`: one load per linear interpolation.
     pub(super) lin: Vec<[f32; 2]>,
     /// Sliding maxima of `cc` over `±window[p]` lags.
     pub(super) cc_max: Vec<f32>,
     pub(super) window: Vec<usize>,
-    /// Per pair, the lags (row indices, half-open) whose `lin` and whose
+    /// Per row, the lags (row indices, half-open) whose `lin` and whose
     /// `cc_max` a search reads: the rest of those rows is never computed.
     /// The whole row unless [`Self::restrict`] narrowed them.
     lin_used: LagSpans,
@@ -85,7 +142,7 @@ impl std::fmt::Debug for CrossCorrelator {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         f.debug_struct("CrossCorrelator")
             .field("mics", &self.mics)
-            .field("pairs", &self.pairs.len())
+            .field("rows", &self.rows.len())
             .field("band", &self.band)
             .field("lag_radius", &self.lag_radius)
             .finish_non_exhaustive()
@@ -93,12 +150,21 @@ impl std::fmt::Debug for CrossCorrelator {
 }
 
 impl CrossCorrelator {
-    /// Plans the correlator. `lag_radius < frame_len/2`; `window[p]` is the
-    /// half-width of the sliding maximum of pair `p` (≤ `lag_radius`).
-    pub fn new(mics: usize, frame_len: usize, band: Band, lag_radius: usize, window: Vec<usize>) -> Self {
+    /// Plans the correlator for `rows` (see [`pair_rows`] for one per pair).
+    /// `lag_radius < frame_len/2`; `window[r]` is the half-width of the
+    /// sliding maximum of row `r` (≤ `lag_radius`).
+    pub fn new(
+        mics: usize,
+        frame_len: usize,
+        band: Band,
+        lag_radius: usize,
+        rows: PairRows,
+        window: Vec<usize>,
+    ) -> Self {
         assert!(lag_radius < frame_len / 2 && !band.is_empty() && band.lo >= 1 && band.hi <= frame_len / 2);
-        let pairs: Vec<_> = (0..mics).flat_map(|i| (i + 1..mics).map(move |j| (i, j))).collect();
-        assert_eq!(window.len(), pairs.len());
+        assert!(rows.iter().all(|r| !r.is_empty() && r.iter().all(|&(a, b)| a < mics && b < mics && a != b)));
+        let pairs = rows.len();
+        assert_eq!(window.len(), pairs);
         let ifft = FftPlanner::<f32>::new().plan_fft_inverse(frame_len);
         let stride = 2 * lag_radius + 2;
         let padded = band.len().div_ceil(LANES) * LANES;
@@ -112,28 +178,29 @@ impl CrossCorrelator {
             phat_energy: vec![0.0; mics],
             spec: vec![Complex::new(0.0, 0.0); frame_len],
             scratch: vec![Complex::new(0.0, 0.0); ifft.get_inplace_scratch_len()],
+            cross: vec![0.0; 4 * padded],
             ifft,
             lag_radius,
             stride,
-            cc: vec![0.0; pairs.len() * stride],
-            lin: vec![[0.0; 2]; pairs.len() * stride],
-            cc_max: vec![0.0; pairs.len() * stride],
+            cc: vec![0.0; pairs * stride],
+            lin: vec![[0.0; 2]; pairs * stride],
+            cc_max: vec![0.0; pairs * stride],
             tmp: vec![0.0; 2 * (stride + 2 * window.iter().copied().max().unwrap_or(0))],
             lin_used: vec![(0, stride); window.len()],
             max_used: vec![(0, stride); window.len()],
             window,
-            pairs,
+            rows,
             arch: pulp::Arch::new(),
         }
     }
 
-    /// Computes `lin` and `cc_max` of pair `p` only on the row indices
-    /// `lin[p]` and `max[p]` (half-open, clipped to the row): the entries a
-    /// search reads (see [`super::search::SearchTables::used_lags`]). A pair
-    /// whose microphones are close spans few lags, so most of its row is
+    /// Computes `lin` and `cc_max` of row `r` only on the indices `lin[r]`
+    /// and `max[r]` (half-open, clipped to the row): the entries a search
+    /// reads (see [`super::search::SearchTables::used_lags`]). A baseline
+    /// between close microphones spans few lags, so most of its row is
     /// never read. `cc` is still computed on every lag.
     pub fn restrict(&mut self, lin: &[(usize, usize)], max: &[(usize, usize)]) {
-        assert!(lin.len() == self.pairs.len() && max.len() == self.pairs.len());
+        assert!(lin.len() == self.rows.len() && max.len() == self.rows.len());
         let clip = |&(a, b): &(usize, usize)| (a.min(self.stride), b.min(self.stride));
         self.lin_used = lin.iter().map(clip).collect();
         self.max_used = max.iter().map(clip).collect();
@@ -168,11 +235,36 @@ impl CrossCorrelator {
         }
     }
 
-    /// Computes `cc` of every pair from the whitened spectra (inverse FFT of
-    /// the PHAT cross-spectra, two pairs per complex FFT), then `lin` and the
-    /// sliding maxima `cc_max`.
+    /// Computes `cc` of every row from the whitened spectra (inverse FFT of
+    /// the rows' summed PHAT cross-spectra, two rows per complex FFT), then
+    /// `lin` and the sliding maxima `cc_max`.
     pub fn correlate(&mut self) {
         crate::simd::run(self.arch, Correlate(self));
+    }
+
+    /// Row `r`'s summed cross-spectrum `Σ X̃_a · conj(X̃_b)` into `out`
+    /// (`[re | im]`, `padded` bins each; the padding stays 0).
+    #[inline(always)]
+    fn row_cross(&self, r: usize, out: &mut [f32]) {
+        let padded = self.padded;
+        let (or, oi) = out.split_at_mut(padded);
+        for (m, &(a, b)) in self.rows[r].iter().enumerate() {
+            let (ar, ai) =
+                (&self.phat_re[a * padded..(a + 1) * padded], &self.phat_im[a * padded..(a + 1) * padded]);
+            let (br, bi) =
+                (&self.phat_re[b * padded..(b + 1) * padded], &self.phat_im[b * padded..(b + 1) * padded]);
+            if m == 0 {
+                for q in 0..padded {
+                    or[q] = ar[q] * br[q] + ai[q] * bi[q];
+                    oi[q] = ai[q] * br[q] - ar[q] * bi[q];
+                }
+            } else {
+                for q in 0..padded {
+                    or[q] += ar[q] * br[q] + ai[q] * bi[q];
+                    oi[q] += ai[q] * br[q] - ar[q] * bi[q];
+                }
+            }
+        }
     }
 
     #[inline(always)]
@@ -180,28 +272,22 @@ impl CrossCorrelator {
         let (k, padded) = (self.band.len(), self.padded);
         let (n, r, lo) = (self.frame_len, self.lag_radius, self.band.lo);
         let scale = 1.0 / (2.0 * k as f32);
-        let pairs = self.pairs.len();
-        for first in (0..pairs).step_by(2) {
+        let rows = self.rows.len();
+        let mut cross = std::mem::take(&mut self.cross);
+        for first in (0..rows).step_by(2) {
             // Z[k] = C₁ + jC₂ and Z[N−k] = C₁* + jC₂*: the inverse FFT is cc₁ + j cc₂.
-            let (i1, j1) = self.pairs[first];
-            let (i2, j2) = if first + 1 < pairs { self.pairs[first + 1] } else { (i1, j1) };
-            let w2 = if first + 1 < pairs { 1.0 } else { 0.0 };
-            let (ar, ai) = (
-                &self.phat_re[i1 * padded..(i1 + 1) * padded],
-                &self.phat_im[i1 * padded..(i1 + 1) * padded],
-            );
-            let (br, bi) = (
-                &self.phat_re[j1 * padded..(j1 + 1) * padded],
-                &self.phat_im[j1 * padded..(j1 + 1) * padded],
-            );
-            let (cr, ci) = (
-                &self.phat_re[i2 * padded..(i2 + 1) * padded],
-                &self.phat_im[i2 * padded..(i2 + 1) * padded],
-            );
-            let (dr, di) = (
-                &self.phat_re[j2 * padded..(j2 + 1) * padded],
-                &self.phat_im[j2 * padded..(j2 + 1) * padded],
-            );
+            let (c1, c2) = cross.split_at_mut(2 * padded);
+            self.row_cross(first, c1);
+            let w2 = if first + 1 < rows {
+                self.row_cross(first + 1, c2);
+                1.0
+            } else {
+                c2.fill(0.0);
+                0.0
+            };
+            let (c1r, c1i) = c1.split_at(padded);
+            let (c2r, c2i) = c2.split_at(padded);
+            let (c1r, c1i, c2r, c2i) = (&c1r[..k], &c1i[..k], &c2r[..k], &c2i[..k]);
             self.spec[..lo].fill(Complex::new(0.0, 0.0));
             self.spec[lo + k..=n - lo - k].fill(Complex::new(0.0, 0.0));
             self.spec[n - lo + 1..].fill(Complex::new(0.0, 0.0));
@@ -209,26 +295,19 @@ impl CrossCorrelator {
             // Bin kb = lo + q is pos[lo + q]; bin N − kb is neg[n/2 − 1 − kb].
             let pos = &mut pos[lo..lo + k];
             let neg = &mut neg[n / 2 - lo - k..n / 2 - lo];
-            // C = X̃ᵢ · conj(X̃ⱼ) for both pairs; Z = C₁ + jC₂ at bin k and its
-            // mirror C₁* + jC₂* at N − k (stored in reverse order in `neg`).
-            let (ar, ai, br, bi) = (&ar[..k], &ai[..k], &br[..k], &bi[..k]);
-            let (cr, ci, dr, di) = (&cr[..k], &ci[..k], &dr[..k], &di[..k]);
-            let cross = |q: usize| {
-                let (c1r, c1i) = (ar[q] * br[q] + ai[q] * bi[q], ai[q] * br[q] - ar[q] * bi[q]);
-                let (c2r, c2i) = (cr[q] * dr[q] + ci[q] * di[q], ci[q] * dr[q] - cr[q] * di[q]);
-                (c1r, c1i, w2 * c2r, w2 * c2i)
-            };
+            // Z = C₁ + jC₂ at bin k and its mirror C₁* + jC₂* at N − k
+            // (stored in reverse order in `neg`).
             for (q, z) in pos.iter_mut().enumerate() {
-                let (c1r, c1i, c2r, c2i) = cross(q);
-                *z = Complex::new(c1r - c2i, c1i + c2r);
+                let (br, bi) = (w2 * c2r[q], w2 * c2i[q]);
+                *z = Complex::new(c1r[q] - bi, c1i[q] + br);
             }
             for (q, z) in neg.iter_mut().rev().enumerate() {
-                let (c1r, c1i, c2r, c2i) = cross(q);
-                *z = Complex::new(c1r + c2i, c2r - c1i);
+                let (br, bi) = (w2 * c2r[q], w2 * c2i[q]);
+                *z = Complex::new(c1r[q] + bi, br - c1i[q]);
             }
             self.ifft.process_with_scratch(&mut self.spec, &mut self.scratch);
             for (slot, p) in [first, first + 1].into_iter().enumerate() {
-                if p >= pairs {
+                if p >= rows {
                     break;
                 }
                 let out = &mut self.cc[p * self.stride..(p + 1) * self.stride];
@@ -244,12 +323,13 @@ impl CrossCorrelator {
                 out[2 * r + 1] = out[2 * r];
             }
         }
-        for p in 0..pairs {
+        self.cross = cross;
+        for p in 0..rows {
             self.finish_row(p);
         }
     }
 
-    /// Updates `lin` and `cc_max` of pair `p` from its `cc` row.
+    /// Updates `lin` and `cc_max` of row `p` from its `cc` row.
     #[inline(always)]
     fn finish_row(&mut self, p: usize) {
         let s = self.stride;
@@ -427,7 +507,7 @@ mod tests {
         let n = 256;
         let bins = n / 2 + 1;
         let band = Band { lo: 1, hi: n / 2 };
-        let mut cc = CrossCorrelator::new(2, n, band, 20, vec![2]);
+        let mut cc = CrossCorrelator::new(2, n, band, 20, pair_rows(2), vec![2]);
         // Mic 1 hears the signal 5 samples after mic 0: X1 = X0 e^{-jω5}.
         let mut spectra = vec![Complex::new(0.0f32, 0.0); 2 * bins];
         for k in 0..bins {
@@ -450,9 +530,57 @@ mod tests {
     }
 
     #[test]
+    fn a_baseline_row_is_the_sum_of_its_pairs_correlations() {
+        // The Pioneer's two rectangular rings: 120 pairs on 88 baselines.
+        let array = crate::array::ArrayGeometry::load("16soundsusb-pioneer").unwrap();
+        let positions: Vec<Vector3<f64>> = array.positions().map(|p| p.coords).collect();
+        let m = positions.len();
+        let rows = baseline_rows(&positions);
+        assert_eq!(rows.len(), 88);
+        assert_eq!(rows.iter().map(Vec::len).sum::<usize>(), m * (m - 1) / 2);
+        for r in &rows {
+            let axis = positions[r[0].1] - positions[r[0].0];
+            for &(a, b) in r {
+                assert!((positions[b] - positions[a] - axis).norm() < 1e-9, "{r:?}");
+            }
+        }
+        let (n, radius) = (256, 40);
+        let band = Band { lo: 2, hi: 120 };
+        let pairs = pair_rows(m);
+        let mut merged = CrossCorrelator::new(m, n, band, radius, rows.clone(), vec![1; rows.len()]);
+        let mut single = CrossCorrelator::new(m, n, band, radius, pairs.clone(), vec![1; pairs.len()]);
+        let bins = n / 2 + 1;
+        let spectra: Vec<Complex<f32>> = (0..m * bins)
+            .map(|q| {
+                Complex::from_polar(1.0 + (q % 7) as f32, (q as f32 * 0.37).sin() * 3.0 + q as f32 * 0.011)
+            })
+            .collect();
+        merged.whiten(&spectra);
+        merged.correlate();
+        single.whiten(&spectra);
+        single.correlate();
+        let s = single.stride;
+        for (r, row) in rows.iter().enumerate() {
+            for lag in 0..=2 * radius {
+                let want: f32 = row
+                    .iter()
+                    .map(|&(a, b)| {
+                        // Pair (a, b) reversed is pair (b, a) at the mirrored lag.
+                        let (p, q) = if a < b { ((a, b), lag) } else { ((b, a), 2 * radius - lag) };
+                        let p = pairs.iter().position(|x| x[0] == p).unwrap();
+                        single.cc[p * s + q]
+                    })
+                    .sum();
+                let got = merged.cc[r * s + lag];
+                assert!((got - want).abs() < 1e-5, "row {r} {row:?} lag {lag}: {got} vs {want}");
+            }
+        }
+    }
+
+    #[test]
     fn sliding_max_matches_brute_force() {
         let n = 64;
-        let mut c = CrossCorrelator::new(2, n, Band { lo: 1, hi: 32 }, 12, vec![7]);
+        let mut c = CrossCorrelator::new(2, n, Band { lo: 1, hi: 32 }, 12, pair_rows(2), vec![7]);
         let s = c.stride;
         for q in 0..s {
             c.cc[q] = ((q * 7919) % 23) as f32 - 11.0;

@@ -3,7 +3,9 @@
 //! The fine grid (icosphere `fine_level`, only the points in the search
 //! region) is partitioned into cells: each fine point belongs to its nearest
 //! coarse point (icosphere `coarse_level`). As in ODAS's SRP-PHAT-HSDA, the
-//! coarse response of a cell sums, per pair, the *maximum* of the pair's
+//! coarse response of a cell sums, per correlation row (a baseline: one
+//! pair, or the pairs displaced by the same vector, see [`super::phat`]),
+//! the *maximum* of the row's
 //! correlation over every lag a fine point of the cell may read, so it bounds
 //! the fine response of every point of the cell from above. The search is then
 //! a branch and bound: cells are opened in decreasing order of their bound
@@ -13,7 +15,8 @@
 //! between integer lags.
 //!
 //! TDOA convention: pair `p = (i, j)` has `τₚ(d) = (pⱼ − pᵢ)·d · fs/c`
-//! samples for a far-field source in direction `d` (array frame).
+//! samples for a far-field source in direction `d` (array frame); a row's
+//! is that of its first pair. Below, "pair" `p` is the correlator's row `p`.
 
 use nalgebra::Vector3;
 
@@ -85,8 +88,8 @@ impl Exclusion<'_> {
 }
 
 impl SearchTables {
-    /// Builds the tables. `pair_axes[p]` maps a direction to pair `p`'s TDOA
-    /// in samples (`τₚ(d) = pair_axes[p]·d`), `pair_mics[p]` are its
+    /// Builds the tables. `pair_axes[p]` maps a direction to row `p`'s TDOA
+    /// in samples (`τₚ(d) = pair_axes[p]·d`), `pair_mics[p]` are its first pair's
     /// microphones; only fine points within half a fine spacing of `region`
     /// are kept. The correlator must keep lags up to [`Self::lag_radius`].
     pub fn new(
