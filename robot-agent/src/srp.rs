@@ -314,15 +314,14 @@ impl Srp {
         let positions: Vec<Vector3<f64>> = array.positions().map(|p| p.coords).collect();
         let m = positions.len();
         let pair_mics: Vec<(usize, usize)> = (0..m).flat_map(|i| (i + 1..m).map(move |j| (i, j))).collect();
-        let pair_axes: Vec<Vector3<f64>> =
-            pair_mics.iter().map(|&(i, j)| (positions[j] - positions[i]) * (fs / c)).collect();
+        let tdoa_axis = |&(i, j): &(usize, usize)| (positions[j] - positions[i]) * (fs / c);
+        let pair_axes: Vec<Vector3<f64>> = pair_mics.iter().map(tdoa_axis).collect();
         // One correlation row per baseline (`phat`, module docs); a pair of
         // directional microphones weighs its own correlation, so keeps its own row.
         let directional = array.microphones.iter().any(|m| m.axis_in_array.is_some());
         let rows = if directional { phat::pair_rows(m) } else { phat::baseline_rows(&positions) };
         let row_mics: Vec<(usize, usize)> = rows.iter().map(|r| r[0]).collect();
-        let row_axes: Vec<Vector3<f64>> =
-            row_mics.iter().map(|&(i, j)| (positions[j] - positions[i]) * (fs / c)).collect();
+        let row_axes: Vec<Vector3<f64>> = row_mics.iter().map(tdoa_axis).collect();
         let tables =
             SearchTables::new(array, &row_axes, &row_mics, &region, config.coarse_level, config.fine_level);
         let radius = tables.lag_radius();

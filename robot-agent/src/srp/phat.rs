@@ -278,13 +278,11 @@ impl CrossCorrelator {
             // Z[k] = C₁ + jC₂ and Z[N−k] = C₁* + jC₂*: the inverse FFT is cc₁ + j cc₂.
             let (c1, c2) = cross.split_at_mut(2 * padded);
             self.row_cross(first, c1);
-            let w2 = if first + 1 < rows {
+            if first + 1 < rows {
                 self.row_cross(first + 1, c2);
-                1.0
             } else {
                 c2.fill(0.0);
-                0.0
-            };
+            }
             let (c1r, c1i) = c1.split_at(padded);
             let (c2r, c2i) = c2.split_at(padded);
             let (c1r, c1i, c2r, c2i) = (&c1r[..k], &c1i[..k], &c2r[..k], &c2i[..k]);
@@ -298,12 +296,10 @@ impl CrossCorrelator {
             // Z = C₁ + jC₂ at bin k and its mirror C₁* + jC₂* at N − k
             // (stored in reverse order in `neg`).
             for (q, z) in pos.iter_mut().enumerate() {
-                let (br, bi) = (w2 * c2r[q], w2 * c2i[q]);
-                *z = Complex::new(c1r[q] - bi, c1i[q] + br);
+                *z = Complex::new(c1r[q] - c2i[q], c1i[q] + c2r[q]);
             }
             for (q, z) in neg.iter_mut().rev().enumerate() {
-                let (br, bi) = (w2 * c2r[q], w2 * c2i[q]);
-                *z = Complex::new(c1r[q] + bi, br - c1i[q]);
+                *z = Complex::new(c1r[q] + c2i[q], c2r[q] - c1i[q]);
             }
             self.ifft.process_with_scratch(&mut self.spec, &mut self.scratch);
             for (slot, p) in [first, first + 1].into_iter().enumerate() {
@@ -350,7 +346,7 @@ impl CrossCorrelator {
     }
 
     /// `cc_max[p][n] = max(cc[p][n−w..=n+w])` (clipped at the stored lags)
-    /// for the lags `n` in `from..to` of pair `p` only.
+    /// for the lags `n` in `from..to` of row `p` only.
     ///
     /// The lags it reads, `from−w..to+w` clipped to the row, are padded with
     /// −∞ up to `w` entries on each side, so that one formula holds
@@ -396,7 +392,7 @@ impl CrossCorrelator {
         }
     }
 
-    /// Zeroes pair `p`'s correlation around fractional lag index `t`
+    /// Zeroes row `p`'s correlation around fractional lag index `t`
     /// (`t = lag + R`) over `±half` lags, and updates its interpolation
     /// table and sliding maxima.
     #[inline(always)]

@@ -211,9 +211,10 @@ impl Refiner {
     }
 
     /// Writes `Y[k] = X̃ᵢ[k] e^{−jωₖ a}` of microphone `i` to `yr`/`yi`, and
-    /// the phasors to `ph` when `keep_phasors`.
+    /// its phasors to `ph` (for the projection; an evaluation steers in
+    /// [`Self::bin_sums`]).
     #[inline(always)]
-    fn steer(&mut self, cc: &CrossCorrelator, i: usize, a: f64, keep_phasors: bool) {
+    fn steer(&mut self, cc: &CrossCorrelator, i: usize, a: f64) {
         let (k, padded) = (self.bins, self.padded);
         let Phasors { mut pr, mut pi, c8, s8 } = self.phasors(a);
         let xr = &cc.phat_re[i * padded..(i + 1) * padded];
@@ -231,10 +232,8 @@ impl Refiner {
             for l in 0..LANES {
                 yr[l] = xr[l] * pr[l] - xi[l] * pi[l];
                 yi[l] = xr[l] * pi[l] + xi[l] * pr[l];
-                if keep_phasors {
-                    phr[l] = pr[l];
-                    phi[l] = pi[l];
-                }
+                phr[l] = pr[l];
+                phi[l] = pi[l];
                 let nr = pr[l] * c8 - pi[l] * s8;
                 pi[l] = pr[l] * s8 + pi[l] * c8;
                 pr[l] = nr;
@@ -567,7 +566,7 @@ impl Refiner {
         self.sums[..2 * padded].fill(0.0);
         for i in 0..self.positions.len() {
             let a = self.delay_terms(i, d, &e1, &e2, t)[0];
-            self.steer(cc, i, a, true);
+            self.steer(cc, i, a);
             let g = gains[i];
             let (re, im) = self.sums[..2 * padded].split_at_mut(padded);
             for ((r, m), (&yr, &yi)) in re.iter_mut().zip(im.iter_mut()).zip(self.yr.iter().zip(&self.yi)) {
