@@ -234,7 +234,12 @@ fn output_directions(
     }
     let mut directions = Vec::new();
     let config = &for_case(config, case);
+    let trace = output == Output::Reported && traced(case.seed);
+    let tr = truth(case);
     run_pipeline(array, config, &x, |r, t| {
+        if trace {
+            trace_hop(case.seed, t, r, &tr);
+        }
         let d = match output {
             Output::Strongest => r.potentials.first().map(|p| p.direction_in_array),
             Output::Reported => r.reported.first().map(|&i| r.tracks[i].direction_in_array),
@@ -253,6 +258,41 @@ fn output_directions(
         }
     });
     directions
+}
+
+/// Whether `SOUNDMAP_TRACE` (a case's seed, or `all`) asks for case `seed`'s hops.
+fn traced(seed: u64) -> bool {
+    std::env::var("SOUNDMAP_TRACE").is_ok_and(|v| v == "all" || v == seed.to_string())
+}
+
+/// One hop on standard error: each potential's angle to the direct path,
+/// coherence and elevation (array frame), then each track's id, `C`
+/// (confirmed) or `t` (tentative) and angle to the direct path, and the
+/// reported tracks' indices.
+fn trace_hop(seed: u64, t: f64, r: &soundmap_agent::pipeline::FrameResult, truth: &Vector3<f64>) {
+    let angle = |d: &Vector3<f64>| d.dot(truth).clamp(-1.0, 1.0).acos().to_degrees();
+    let potentials: Vec<String> = r
+        .potentials
+        .iter()
+        .map(|p| {
+            let d = p.direction_in_array;
+            format!("{:.1}° c {:.3} el {:.2}°", angle(&d), p.energy, d.z.clamp(-1.0, 1.0).asin().to_degrees())
+        })
+        .collect();
+    let tracks: Vec<String> = r
+        .tracks
+        .iter()
+        .map(|k| {
+            let state = if k.confirmed { "C" } else { "t" };
+            format!("#{}{state} {:.1}°", k.track_id, angle(&k.direction_in_array))
+        })
+        .collect();
+    eprintln!(
+        "case {seed} t {t:.3} potentials [{}] tracks [{}] reported {:?}",
+        potentials.join(", "),
+        tracks.join(", "),
+        r.reported
+    );
 }
 
 /// Azimuth of `d` minus that of `truth` (array frame), radians in `[−π, π)`.
@@ -781,8 +821,9 @@ fn error_parts_sweep() {
 /// `SOUNDMAP_FLOOR_FIT=1` turns on `[srp] floor_fit` (with
 /// `SOUNDMAP_FLOOR_REFLECTION`, `SOUNDMAP_FLOOR_MIN_GAIN`, and
 /// `SOUNDMAP_FLOOR_CEILING=1` for the room's ceiling), `SOUNDMAP_CASES=1`
-/// prints each case, `SOUNDMAP_TALKER=1` plays the corner sweep's talker
-/// (300–3400 Hz, 4.5 syllables/s) instead of white noise:
+/// prints each case, `SOUNDMAP_TRACE=SEED` (or `all`) prints every hop of
+/// that case's reported runs ([`trace_hop`]), `SOUNDMAP_TALKER=1` plays the
+/// corner sweep's talker (300–3400 Hz, 4.5 syllables/s) instead of white noise:
 /// `cargo test -p soundmap-sim --test hearing_reverb reported_sweep -- --ignored --nocapture`.
 #[test]
 #[ignore = "about a minute; run with --ignored --nocapture"]
