@@ -6,19 +6,19 @@ use std::path::{Path, PathBuf};
 use soundmap_agent::AgentError;
 use soundmap_agent::array::{ArrayGeometry, presets};
 
-fn temp_file(name: &str, text: &str) -> PathBuf {
-    let dir = std::env::temp_dir().join(format!("soundmap-array-files-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
-    let path = dir.join(name);
-    std::fs::write(&path, text).unwrap();
-    path
+/// `text` in a scratch file whose name ends in `name`, removed when dropped.
+fn temp_file(name: &str, text: &str) -> tempfile::TempPath {
+    let file =
+        tempfile::Builder::new().prefix("soundmap-array-").suffix(&format!("-{name}")).tempfile().unwrap();
+    std::fs::write(file.path(), text).unwrap();
+    file.into_temp_path()
 }
 
 /// Loads `text` from a file and returns the (path, field, message) of the error.
 fn config_error(name: &str, text: &str) -> (PathBuf, PathBuf, String, String) {
     let path = temp_file(name, text);
     match ArrayGeometry::load(path.to_str().unwrap()) {
-        Err(AgentError::Config { path: p, field, message }) => (path, p, field, message),
+        Err(AgentError::Config { path: p, field, message }) => (path.to_path_buf(), p, field, message),
         other => panic!("{name}: expected a Config error, got {other:?}"),
     }
 }

@@ -1,17 +1,15 @@
 //! Audio inputs: WAV and raw PCM files written to a temporary directory and read back.
 
 use std::io::Cursor;
-use std::path::{Path, PathBuf};
+use std::path::Path;
 
 use soundmap_agent::AgentError;
 use soundmap_agent::audio::{self, AudioInput, AudioSource, BlockOptions, RawFormat, RawLayout, RawSource};
 use soundmap_proto::Stamp;
 
-fn temp_dir(test: &str) -> PathBuf {
-    let d = std::env::temp_dir().join(format!("soundmap-audio-{}-{test}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&d);
-    std::fs::create_dir_all(&d).unwrap();
-    d
+/// A scratch directory for one test, removed when dropped.
+fn temp_dir(test: &str) -> tempfile::TempDir {
+    tempfile::Builder::new().prefix(&format!("soundmap-audio-{test}-")).tempdir().unwrap()
 }
 
 fn options(hop_len: usize, channels: usize, rate: u32) -> BlockOptions {
@@ -59,7 +57,7 @@ fn read_all(src: &mut dyn AudioSource) -> Result<(Vec<Stamp>, Vec<f32>), AgentEr
 fn wav_integer_and_float_formats_read_back_at_full_scale() {
     let dir = temp_dir("formats");
     for (bits, float, tol) in [(16, false, 1e-4), (24, false, 1e-6), (32, false, 1e-7), (32, true, 1e-7)] {
-        let path = dir.join(format!("t{bits}{float}.wav"));
+        let path = dir.path().join(format!("t{bits}{float}.wav"));
         write_wav(&path, 3, 16_000, bits, float, 10);
         let mut src = audio::open(&AudioInput::Wav { path: path.clone() }, &options(4, 3, 16_000)).unwrap();
         let (stamps, all) = read_all(src.as_mut()).unwrap();
@@ -82,7 +80,7 @@ fn wav_integer_and_float_formats_read_back_at_full_scale() {
 #[test]
 fn channel_map_selects_and_reorders() {
     let dir = temp_dir("map");
-    let path = dir.join("four.wav");
+    let path = dir.path().join("four.wav");
     write_wav(&path, 4, 8_000, 16, false, 8);
     let opts = BlockOptions { channel_map: Some(vec![3, 0]), ..options(8, 2, 8_000) };
     let mut src = audio::open(&AudioInput::Wav { path }, &opts).unwrap();
@@ -97,7 +95,7 @@ fn channel_map_selects_and_reorders() {
 #[test]
 fn blocks_are_stamped_from_the_sample_count_and_start() {
     let dir = temp_dir("stamps");
-    let path = dir.join("s.wav");
+    let path = dir.path().join("s.wav");
     write_wav(&path, 2, 48_000, 16, false, 48_000);
     let start = Stamp::from_ns(1_700_000_000_123_456_789);
     let opts = BlockOptions { start, ..options(480, 2, 48_000) };
@@ -132,7 +130,7 @@ fn raw_bytes(format: RawFormat, channels: usize, frames: usize) -> Vec<u8> {
 fn raw_files_in_each_format_read_back() {
     let dir = temp_dir("raw");
     for format in [RawFormat::S16le, RawFormat::S24le, RawFormat::S32le] {
-        let path = dir.join(format!("x.{}", format.name()));
+        let path = dir.path().join(format!("x.{}", format.name()));
         std::fs::write(&path, raw_bytes(format, 5, 9)).unwrap();
         let layout = RawLayout { format, channels: 5, sample_rate_hz: 16_000 };
         let mut src = audio::open(&AudioInput::Raw { path, layout }, &options(3, 5, 16_000)).unwrap();
@@ -163,7 +161,7 @@ fn a_raw_stream_is_read_block_by_block_and_may_end_mid_hop() {
 #[test]
 fn truncated_wav_is_named_and_explained() {
     let dir = temp_dir("truncated");
-    let path = dir.join("cut.wav");
+    let path = dir.path().join("cut.wav");
     write_wav(&path, 2, 16_000, 16, false, 100);
     let bytes = std::fs::read(&path).unwrap();
     std::fs::write(&path, &bytes[..bytes.len() - 41]).unwrap();
@@ -176,7 +174,7 @@ fn truncated_wav_is_named_and_explained() {
 #[test]
 fn raw_file_that_is_not_whole_frames_is_rejected() {
     let dir = temp_dir("rawcut");
-    let path = dir.join("cut.raw");
+    let path = dir.path().join("cut.raw");
     let mut bytes = raw_bytes(RawFormat::S24le, 4, 10);
     bytes.truncate(bytes.len() - 5);
     std::fs::write(&path, bytes).unwrap();
@@ -196,7 +194,7 @@ fn raw_file_that_is_not_whole_frames_is_rejected() {
 #[test]
 fn wrong_channel_count_and_sample_rate_are_rejected() {
     let dir = temp_dir("shape");
-    let path = dir.join("six.wav");
+    let path = dir.path().join("six.wav");
     write_wav(&path, 6, 16_000, 16, false, 10);
     let input = AudioInput::Wav { path };
     let msg = audio::open(&input, &options(4, 8, 16_000)).unwrap_err().to_string();
@@ -214,13 +212,13 @@ fn wrong_channel_count_and_sample_rate_are_rejected() {
 #[test]
 fn unsupported_wav_encodings_are_rejected() {
     let dir = temp_dir("unsupported");
-    let path = dir.join("eight.wav");
+    let path = dir.path().join("eight.wav");
     write_wav(&path, 2, 16_000, 8, false, 10);
     let msg = audio::open(&AudioInput::Wav { path }, &options(4, 2, 16_000)).unwrap_err().to_string();
     assert!(msg.contains("eight.wav") && msg.contains("8-bit integer samples are not supported"), "{msg}");
 
     // A 64-bit float WAV (hound cannot write one): RIFF header by hand.
-    let path = dir.join("f64.wav");
+    let path = dir.path().join("f64.wav");
     let (channels, rate, bits) = (2u16, 16_000u32, 64u16);
     let block_align = channels * bits / 8;
     let data = vec![0u8; 4 * block_align as usize];
@@ -242,7 +240,7 @@ fn unsupported_wav_encodings_are_rejected() {
     let msg = audio::open(&AudioInput::Wav { path }, &options(4, 2, 16_000)).unwrap_err().to_string();
     assert!(msg.contains("f64.wav") && msg.contains("not a supported WAV"), "{msg}");
 
-    let msg = audio::open(&AudioInput::Wav { path: dir.join("missing.wav") }, &options(4, 2, 16_000))
+    let msg = audio::open(&AudioInput::Wav { path: dir.path().join("missing.wav") }, &options(4, 2, 16_000))
         .unwrap_err()
         .to_string();
     assert!(msg.contains("missing.wav"), "{msg}");
@@ -273,7 +271,7 @@ fn files_are_recognised_by_their_content_not_their_name() {
     let dir = temp_dir("sniff");
     let layout = RawLayout { format: RawFormat::S16le, channels: 2, sample_rate_hz: 16_000 };
     // A WAV file named .raw is a WAV file.
-    let wav_named_raw = dir.join("take.raw");
+    let wav_named_raw = dir.path().join("take.raw");
     write_wav(&wav_named_raw, 2, 16_000, 16, false, 10);
     assert_eq!(audio::sniff(&wav_named_raw).unwrap(), audio::AudioFileKind::Wav);
     let input = AudioInput::from_path(&wav_named_raw, None).unwrap();
@@ -288,7 +286,7 @@ fn files_are_recognised_by_their_content_not_their_name() {
     assert!(msg.contains("take.raw") && msg.contains("a WAV file (RIFF/WAVE header), not raw PCM"), "{msg}");
 
     // Raw PCM named .wav is raw PCM: it needs its layout, and is not read as WAV.
-    let raw_named_wav = dir.join("take.wav");
+    let raw_named_wav = dir.path().join("take.wav");
     std::fs::write(&raw_named_wav, raw_bytes(RawFormat::S16le, 2, 10)).unwrap();
     assert_eq!(audio::sniff(&raw_named_wav).unwrap(), audio::AudioFileKind::Raw);
     let e = AudioInput::from_path(&raw_named_wav, None).unwrap_err();
@@ -310,7 +308,7 @@ fn files_are_recognised_by_their_content_not_their_name() {
     assert!(msg.contains("take.wav") && msg.contains("not a WAV file (no RIFF/WAVE header)"), "{msg}");
 
     // A file shorter than a header is raw PCM too.
-    let tiny = dir.join("tiny.pcm");
+    let tiny = dir.path().join("tiny.pcm");
     std::fs::write(&tiny, [0u8; 4]).unwrap();
     assert_eq!(audio::sniff(&tiny).unwrap(), audio::AudioFileKind::Raw);
     // Standard input is raw PCM and needs its layout.
@@ -324,7 +322,7 @@ fn files_are_recognised_by_their_content_not_their_name() {
 fn a_missing_file_says_no_such_file_with_its_path() {
     let dir = temp_dir("missing");
     let layout = RawLayout { format: RawFormat::S16le, channels: 2, sample_rate_hz: 16_000 };
-    let path = dir.join("nowhere.wav");
+    let path = dir.path().join("nowhere.wav");
     let expected = format!("{}: no such file", path.display());
     for result in [
         AudioInput::from_path(&path, None).map(drop),

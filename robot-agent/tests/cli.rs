@@ -5,7 +5,7 @@
 use crate::synth;
 
 use std::io::Write;
-use std::path::{Path, PathBuf};
+use std::path::Path;
 use std::process::{Command, Output, Stdio};
 use std::sync::{Arc, Mutex};
 use std::time::Duration;
@@ -21,11 +21,9 @@ const BIN: &str = env!("CARGO_BIN_EXE_soundmap-agent");
 const FS: u32 = 16_000;
 const FRAMES: usize = 16_384;
 
-fn temp_dir(test: &str) -> PathBuf {
-    let d = std::env::temp_dir().join(format!("soundmap-cli-{}-{test}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&d);
-    std::fs::create_dir_all(&d).unwrap();
-    d
+/// A scratch directory for one test, removed when dropped.
+fn temp_dir(test: &str) -> tempfile::TempDir {
+    tempfile::Builder::new().prefix(&format!("soundmap-cli-{test}-")).tempdir().unwrap()
 }
 
 /// Azimuth 60°, elevation 30°: in respeaker-4's upper-hemisphere search region.
@@ -91,9 +89,9 @@ fn direction(v: &serde_json::Value) -> Vector3<f64> {
 #[test]
 fn localize_writes_one_line_per_hop_with_the_source_direction() {
     let dir = temp_dir("localize");
-    let wav = dir.join("rec.wav");
+    let wav = dir.path().join("rec.wav");
     write_wav(&wav, 4);
-    let out_path = dir.join("out.jsonl");
+    let out_path = dir.path().join("out.jsonl");
     let o = agent(
         &[
             "localize",
@@ -145,7 +143,7 @@ fn localize_writes_one_line_per_hop_with_the_source_direction() {
 #[test]
 fn localize_reads_raw_pcm_from_stdin_like_the_wav() {
     let dir = temp_dir("stdin");
-    let wav = dir.join("rec.wav");
+    let wav = dir.path().join("rec.wav");
     write_wav(&wav, 4);
     let from_wav = agent(&["localize", "--array", "respeaker-4", "--input", wav.to_str().unwrap()], None);
     assert!(from_wav.status.success(), "{}", String::from_utf8_lossy(&from_wav.stderr));
@@ -196,7 +194,7 @@ fn localize_reads_raw_pcm_from_stdin_like_the_wav() {
 #[test]
 fn localize_errors_name_the_file_and_problem() {
     let dir = temp_dir("errors");
-    let wav = dir.join("three.wav");
+    let wav = dir.path().join("three.wav");
     write_wav(&wav, 3);
     let cases: Vec<(Vec<String>, Vec<String>)> = vec![
         (
@@ -316,14 +314,14 @@ impl wire::robot_link_server::RobotLink for Coordinator {
 #[tokio::test(flavor = "multi_thread")]
 async fn run_streams_tracked_doas_with_interpolated_poses_to_the_coordinator() {
     let dir = temp_dir("run");
-    write_wav(&dir.join("rec.wav"), 4);
+    write_wav(&dir.path().join("rec.wav"), 4);
     // The robot drives along x at 1 m/s; file time 10.0 s is audio sample 0.
     let mut tum = String::from("# t tx ty tz qx qy qz qw\n");
     for k in 0..=30 {
         let t = 10.0 + k as f64 * 0.05;
         tum += &format!("{t:.2} {:.3} 0 0 0 0 0 1\n", k as f64 * 0.05);
     }
-    std::fs::write(dir.join("traj.tum"), tum).unwrap();
+    std::fs::write(dir.path().join("traj.tum"), tum).unwrap();
     let coordinator = Coordinator::default();
     let (addr, server) = serve(coordinator.clone()).await;
     let start_ns: i64 = 1_700_000_000_000_000_000;
@@ -350,7 +348,7 @@ max_turn_rate_deg_per_s = 160.0
 heartbeat_interval_ms = 100
 "#
     );
-    run_agent(&dir, &config).await;
+    run_agent(dir.path(), &config).await;
     server.abort();
 
     let seen = coordinator.0.lock().unwrap();
@@ -380,7 +378,7 @@ heartbeat_interval_ms = 100
     // The command sent after the first observation reached the navigator and was acknowledged.
     assert_eq!(seen.acks.len(), 1);
     assert!(seen.acks[0].accepted && seen.acks[0].command_id == 9);
-    let goals = lines(&std::fs::read_to_string(dir.join("goals.jsonl")).unwrap());
+    let goals = lines(&std::fs::read_to_string(dir.path().join("goals.jsonl")).unwrap());
     assert_eq!(goals[0]["type"], "goal");
     assert_eq!((goals[0]["command_id"].as_u64(), goals[0]["x"].as_f64()), (Some(9), Some(2.0)));
 }
@@ -440,7 +438,7 @@ path = "goals.jsonl"
 "#,
         fixture.display()
     );
-    std::fs::write(dir.join("agent.toml"), config).unwrap();
+    std::fs::write(dir.path().join("agent.toml"), config).unwrap();
     // The robot turns in place at 1 rad/s, a pose every 10 ms around the ODAS hops.
     let mut poses = String::new();
     for k in -10..=20 {
@@ -451,7 +449,7 @@ path = "goals.jsonl"
             start_ns + k * 10_000_000
         );
     }
-    let cfg = dir.join("agent.toml");
+    let cfg = dir.path().join("agent.toml");
     let out = tokio::task::spawn_blocking(move || {
         agent(&["run", "--config", cfg.to_str().unwrap()], Some(poses.into_bytes()))
     });
@@ -480,7 +478,7 @@ path = "goals.jsonl"
 #[test]
 fn run_config_errors_name_the_file_and_field() {
     let dir = temp_dir("run-errors");
-    let bad = dir.join("agent.toml");
+    let bad = dir.path().join("agent.toml");
     let example =
         std::fs::read_to_string(Path::new(env!("CARGO_MANIFEST_DIR")).join("../deploy/agent.example.toml"))
             .unwrap()
@@ -510,7 +508,7 @@ async fn run_writes_its_tracks_as_odas_sst_to_a_file_and_a_listening_tool() {
     // No start_ns: sample 0 is the agent's start. The file is read in real
     // time, as a live robot's audio comes (with `asap` the tool would miss the
     // objects it cannot take at once, by design).
-    write_still_recording(&dir);
+    write_still_recording(dir.path());
     let coordinator = Coordinator::default();
     let (addr, server) = serve(coordinator.clone()).await;
     // The ODAS tool: listens, and reads until the agent closes the connection.
@@ -544,10 +542,10 @@ connect = "{tool_addr}"
 file = "out.json"
 "#
     );
-    run_agent(&dir, &config).await;
+    run_agent(dir.path(), &config).await;
     server.abort();
     let from_socket = tokio::time::timeout(Duration::from_secs(10), received).await.unwrap().unwrap();
-    let from_file = std::fs::read(dir.join("out.json")).unwrap();
+    let from_file = std::fs::read(dir.path().join("out.json")).unwrap();
     assert_eq!(from_socket, from_file, "the socket and the file carry the same objects");
 
     let obs = coordinator.0.lock().unwrap().observations.clone();
@@ -587,7 +585,7 @@ file = "out.json"
 #[tokio::test(flavor = "multi_thread")]
 async fn run_places_an_asap_recording_before_its_start() {
     let dir = temp_dir("run-asap");
-    write_still_recording(&dir);
+    write_still_recording(dir.path());
     let coordinator = Coordinator::default();
     let (addr, server) = serve(coordinator.clone()).await;
     let config = format!(
@@ -596,7 +594,7 @@ async fn run_places_an_asap_recording_before_its_start() {
          [pose]\nsource = \"tum\"\npath = \"traj.tum\"\nstart_s = 0.0\n[navigator]\npath = \"goals.jsonl\"\n"
     );
     let before = soundmap_proto::Stamp::now().as_ns();
-    let out = run_agent(&dir, &config).await;
+    let out = run_agent(dir.path(), &config).await;
     server.abort();
     let after = soundmap_proto::Stamp::now().as_ns();
     let obs = coordinator.0.lock().unwrap().observations.clone();

@@ -10,7 +10,7 @@
 //! ```
 
 use std::io::Write;
-use std::path::{Path, PathBuf};
+use std::path::Path;
 
 use proptest::prelude::*;
 use soundmap_agent::audio::{self, AudioInput, BlockOptions, RawFormat, RawLayout, RawSource};
@@ -20,14 +20,12 @@ use soundmap_agent::pose::PoseTimeMapping;
 use soundmap_agent::pose::tum::parse_tum;
 use soundmap_proto::Stamp;
 
-/// A scratch file unique to this process and case.
-fn scratch(name: &str, bytes: &[u8]) -> PathBuf {
-    use std::sync::atomic::{AtomicU64, Ordering};
-    static NEXT: AtomicU64 = AtomicU64::new(0);
-    let n = NEXT.fetch_add(1, Ordering::Relaxed);
-    let p = std::env::temp_dir().join(format!("soundmap-fuzz-{}-{n}-{name}", std::process::id()));
-    std::fs::File::create(&p).unwrap().write_all(bytes).unwrap();
-    p
+/// A scratch file unique to this case, removed when dropped.
+fn scratch(name: &str, bytes: &[u8]) -> tempfile::NamedTempFile {
+    let mut f =
+        tempfile::Builder::new().prefix("soundmap-fuzz-").suffix(&format!("-{name}")).tempfile().unwrap();
+    f.write_all(bytes).unwrap();
+    f
 }
 
 /// A valid 4-channel 16 kHz 16-bit WAV file of `frames` frames.
@@ -129,18 +127,15 @@ fn timing() -> OdasTiming {
 fn the_valid_inputs_parse() {
     let wav = scratch("ok.wav", &wav_bytes(1000));
     // The last, partial hop is completed with silence.
-    assert_eq!(read_all(&wav, None, 128), Ok(1000usize.div_ceil(128)));
+    assert_eq!(read_all(wav.path(), None, 128), Ok(1000usize.div_ceil(128)));
     let raw = scratch("ok.raw", &vec![0u8; 4 * 2 * 512]);
     let layout = RawLayout { format: RawFormat::S16le, channels: 4, sample_rate_hz: 16_000 };
-    assert_eq!(read_all(&raw, Some(layout), 128), Ok(4));
+    assert_eq!(read_all(raw.path(), Some(layout), 128), Ok(4));
     assert_eq!(parse_tum(TUM, "ok.tum", PoseTimeMapping::UNIX).unwrap().len(), 3);
     let frames = SstParser::new().feed(SST.as_bytes());
     assert_eq!(frames.len(), 1);
     assert_eq!(frames[0].as_ref().unwrap().to_frame(&timing()).unwrap().doas.len(), 1);
     AgentConfig::parse(AGENT_TOML, Path::new("agent.toml")).unwrap();
-    for p in [wav, raw] {
-        let _ = std::fs::remove_file(p);
-    }
 }
 
 proptest! {
@@ -162,9 +157,8 @@ proptest! {
         let flips: Vec<(usize, u8)> =
             flips.into_iter().map(|(i, v)| (if header_only { i % 44 } else { i }, v)).collect();
         let bytes = mutate(&wav_bytes(400), &flips, cut, &splice, at);
-        let path = scratch("m.wav", &bytes);
-        let _ = read_all(&path, None, 128);
-        let _ = std::fs::remove_file(path);
+        let file = scratch("m.wav", &bytes);
+        let _ = read_all(file.path(), None, 128);
     }
 
     #[test]
@@ -176,11 +170,10 @@ proptest! {
             h.extend(b);
             b = h;
         }
-        let path = scratch("a.bin", &b);
+        let file = scratch("a.bin", &b);
         let layout = RawLayout { format: RawFormat::S24le, channels: 4, sample_rate_hz: 16_000 };
-        let _ = read_all(&path, Some(layout), 64);
-        let _ = read_all(&path, None, 64);
-        let _ = std::fs::remove_file(path);
+        let _ = read_all(file.path(), Some(layout), 64);
+        let _ = read_all(file.path(), None, 64);
     }
 
     #[test]

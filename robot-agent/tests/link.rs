@@ -499,9 +499,8 @@ async fn link_relays_commands_counts_stream_errors_and_sends_heartbeats() {
 async fn a_command_succeeds_while_the_robot_hears_nothing() {
     let (fake, mut got) = Fake::new(true);
     let (addr, _server) = serve(fake, any_port()).await;
-    let dir = std::env::temp_dir().join(format!("soundmap-link-silent-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
-    let goals = dir.join("goals.jsonl");
+    let dir = tempfile::Builder::new().prefix("soundmap-link-silent-").tempdir().unwrap();
+    let goals = dir.path().join("goals.jsonl");
     let nav = JsonLinesNavigator::open(&goals, 0.2).unwrap();
     let mut r = Running::start(addr, 100, "r3", Box::new(nav));
     assert!(matches!(next(&mut got).await, Got::Hello { .. }));
@@ -543,5 +542,4 @@ async fn a_command_succeeds_while_the_robot_hears_nothing() {
     assert_eq!(s.sent, 3, "the DoA, one empty after it, one empty 0.5 s into the silence");
     let text = std::fs::read_to_string(&goals).unwrap();
     assert!(text.contains("\"command_id\":100"), "{text}");
-    let _ = std::fs::remove_dir_all(&dir);
 }

@@ -83,9 +83,8 @@ fn malformed_objects_are_reported_with_their_line_and_skipped() {
     assert!(errors[0].0 >= 10 && errors[0].0 <= 14, "line {}", errors[0].0);
 
     // From a file, the first bad object is an error naming file and line.
-    let dir = std::env::temp_dir().join(format!("soundmap-odas-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
-    let path = dir.join("broken.json");
+    let dir = scratch("broken");
+    let path = dir.path().join("broken.json");
     std::fs::write(&path, &broken).unwrap();
     let e = odas::read_sst_file(&path, &timing(Stamp::ZERO)).unwrap_err();
     let AgentError::Odas { source_name, .. } = &e else { panic!("{e:?}") };
@@ -152,17 +151,15 @@ async fn next(rx: &mut tokio::sync::mpsc::Receiver<odas::OdasFrame>) -> odas::Od
     tokio::time::timeout(Duration::from_secs(5), rx.recv()).await.expect("a frame within 5 s").expect("open")
 }
 
-fn scratch(name: &str) -> PathBuf {
-    let dir = std::env::temp_dir().join(format!("soundmap-odas-{name}-{}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&dir);
-    std::fs::create_dir_all(&dir).unwrap();
-    dir
+/// A scratch directory for one test, removed when dropped.
+fn scratch(name: &str) -> tempfile::TempDir {
+    tempfile::Builder::new().prefix(&format!("soundmap-odas-{name}-")).tempdir().unwrap()
 }
 
 #[tokio::test]
 async fn a_followed_file_is_read_as_odas_appends_to_it() {
     let dir = scratch("follow");
-    let path = dir.join("tracks.json");
+    let path = dir.path().join("tracks.json");
     let objects = fixture_objects();
     // ODAS has written three objects when the agent starts.
     std::fs::write(&path, objects[..3].concat()).unwrap();
@@ -199,13 +196,12 @@ async fn a_followed_file_is_read_as_odas_appends_to_it() {
     assert_eq!(again.iter().map(|f| f.time_stamp).collect::<Vec<_>>(), vec![1, 2]);
     assert!(again[0].stamp >= before && again[0].stamp <= Stamp::now());
     follower.abort();
-    let _ = std::fs::remove_dir_all(&dir);
 }
 
 #[tokio::test]
 async fn a_followed_file_may_appear_after_the_agent_starts() {
     let dir = scratch("follow-late");
-    let path = dir.join("later.json");
+    let path = dir.path().join("later.json");
     let (tx, mut rx) = tokio::sync::mpsc::channel(16);
     let start = Stamp::now().plus_ns(-10_000_000_000);
     let follower = tokio::spawn(odas::follow_file(path.clone(), 128, 16_000, LiveStart::Fixed(start), tx));
@@ -217,7 +213,6 @@ async fn a_followed_file_may_appear_after_the_agent_starts() {
         assert_eq!((f.time_stamp, f.stamp), (k + 1, start.plus_ns(k as i64 * 8_000_000)));
     }
     follower.abort();
-    let _ = std::fs::remove_dir_all(&dir);
 }
 
 #[tokio::test]

@@ -59,12 +59,11 @@ fn tum_files_parse_with_exact_stamps_and_time_mapping() {
     assert_eq!(mapped[2].stamp, origin.plus_ns(500_000_000));
     assert_eq!(mapped[0].stamp, origin.plus_ns(-499_999_999));
 
-    let dir = std::env::temp_dir().join(format!("soundmap-pose-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
-    let path = dir.join("traj.txt");
+    let dir = tempfile::Builder::new().prefix("soundmap-pose-").tempdir().unwrap();
+    let path = dir.path().join("traj.txt");
     std::fs::write(&path, TUM).unwrap();
     assert_eq!(read_tum(&path, PoseTimeMapping::UNIX).unwrap(), poses);
-    let e = read_tum(&dir.join("none.txt"), PoseTimeMapping::UNIX).unwrap_err();
+    let e = read_tum(&dir.path().join("none.txt"), PoseTimeMapping::UNIX).unwrap_err();
     assert!(e.to_string().contains("none.txt"), "{e}");
 }
 

@@ -22,15 +22,14 @@ use tonic::{Request, Response, Status};
 
 const WAIT: Duration = Duration::from_secs(5);
 
-fn temp_dir(name: &str) -> PathBuf {
-    let dir = std::env::temp_dir().join(format!("soundmap-agent-tls-{name}-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
-    dir
+/// A scratch directory for one test, removed when dropped.
+fn temp_dir(name: &str) -> tempfile::TempDir {
+    tempfile::Builder::new().prefix(&format!("soundmap-agent-tls-{name}-")).tempdir().unwrap()
 }
 
 /// A fleet CA in `dir/ca.pem`; `issue` writes `NAME.pem` and `NAME.key`.
 struct Pki {
-    dir: PathBuf,
+    dir: tempfile::TempDir,
     ca: CertifiedIssuer<'static, KeyPair>,
 }
 
@@ -41,7 +40,7 @@ impl Pki {
         params.is_ca = IsCa::Ca(BasicConstraints::Unconstrained);
         params.distinguished_name.push(DnType::CommonName, "soundmap test fleet CA");
         let ca = CertifiedIssuer::self_signed(params, KeyPair::generate().unwrap()).unwrap();
-        std::fs::write(dir.join("ca.pem"), ca.pem()).unwrap();
+        std::fs::write(dir.path().join("ca.pem"), ca.pem()).unwrap();
         Pki { dir, ca }
     }
 
@@ -51,14 +50,15 @@ impl Pki {
             CertificateParams::new(dns.iter().map(|s| s.to_string()).collect::<Vec<_>>()).unwrap();
         params.distinguished_name.push(DnType::CommonName, name);
         let cert = params.signed_by(&key, &self.ca).unwrap();
-        let (c, k) = (self.dir.join(format!("{name}.pem")), self.dir.join(format!("{name}.key")));
+        let (c, k) =
+            (self.dir.path().join(format!("{name}.pem")), self.dir.path().join(format!("{name}.key")));
         std::fs::write(&c, cert.pem()).unwrap();
         std::fs::write(&k, key.serialize_pem()).unwrap();
         (c, k)
     }
 
     fn ca(&self) -> PathBuf {
-        self.dir.join("ca.pem")
+        self.dir.path().join("ca.pem")
     }
 }
 
@@ -137,7 +137,8 @@ fn hello(id: &str) -> Hello {
 }
 
 fn client_tls(pki: &Pki, identity: Option<&str>) -> ClientTls {
-    let files = identity.map(|n| (pki.dir.join(format!("{n}.pem")), pki.dir.join(format!("{n}.key"))));
+    let files =
+        identity.map(|n| (pki.dir.path().join(format!("{n}.pem")), pki.dir.path().join(format!("{n}.key"))));
     ClientTls::from_files(
         &pki.ca(),
         files.as_ref().map(|f| f.0.as_path()),
@@ -215,7 +216,7 @@ fn config_error(dir: &Path, coordinator: &str) -> String {
 #[test]
 fn tls_settings_errors_name_the_file_and_the_key() {
     let pki = Pki::new("config");
-    let dir = &pki.dir;
+    let dir = pki.dir.path();
     pki.issue("r1", &["r1"]);
     std::fs::write(dir.join("junk.pem"), "not PEM at all\n").unwrap();
     let at = |key: &str| format!("{}: coordinator.{key}: ", dir.join("agent.toml").display());

@@ -11,7 +11,7 @@
 //! (`cargo test -p soundmap-server --release --test integration chaos:: -- --ignored`).
 
 use std::collections::BTreeSet;
-use std::path::{Path, PathBuf};
+use std::path::Path;
 use std::process::{Child, Command, Stdio};
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
@@ -56,11 +56,10 @@ fn json_lines(path: &Path) -> Vec<serde_json::Value> {
 }
 
 async fn chaos(kills: usize) {
-    let dir: PathBuf = std::env::temp_dir().join(format!("soundmap-chaos-{}-{kills}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&dir);
-    std::fs::create_dir_all(&dir).unwrap();
+    let tmp = tempfile::Builder::new().prefix(&format!("soundmap-chaos-{kills}-")).tempdir().unwrap();
+    let dir = tmp.path();
     let addr = free_port();
-    let mut child = start(&dir, addr);
+    let mut child = start(dir, addr);
     // Robots stream for the whole run; the coordinator is killed under them.
     let run = Duration::from_secs_f64(2.0 + 1.6 * kills as f64);
     let until = Instant::now() + run;
@@ -76,7 +75,7 @@ async fn chaos(kills: usize) {
         child.kill().unwrap(); // SIGKILL
         child.wait().unwrap();
         tokio::time::sleep(Duration::from_millis(100)).await;
-        child = start(&dir, addr);
+        child = start(dir, addr);
         tokio::time::sleep(Duration::from_millis(1500)).await;
     }
     for r in robots {
@@ -150,7 +149,6 @@ async fn chaos(kills: usize) {
         "the source was published (with its id) after only {resumed} of {} runs",
         kills + 1
     );
-    let _ = std::fs::remove_dir_all(&dir);
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]

@@ -26,9 +26,8 @@ fn example_configs_parse() {
 
 #[test]
 fn binary_names_file_and_key_of_a_broken_config() {
-    let dir = std::env::temp_dir().join(format!("soundmap-cfg-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
-    let bad = dir.join("coordinator.toml");
+    let dir = tempfile::Builder::new().prefix("soundmap-cfg-").tempdir().unwrap();
+    let bad = dir.path().join("coordinator.toml");
     std::fs::write(&bad, "[alignment]\nwindow_ms = -3\n").unwrap();
     let out = Command::new(env!("CARGO_BIN_EXE_soundmap-coordinator"))
         .arg("--config")
@@ -52,7 +51,6 @@ fn binary_names_file_and_key_of_a_broken_config() {
         .output()
         .unwrap();
     assert!(String::from_utf8_lossy(&missing.stderr).contains("/nonexistent/c.toml"));
-    std::fs::remove_dir_all(&dir).unwrap();
 }
 
 /// The example's `[tracking]`, `[active_positioning]` and `[planner]` sections
@@ -74,9 +72,8 @@ fn example_sections_state_the_defaults() {
 /// file and the dotted key, as every other key.
 #[test]
 fn bad_planner_and_tracking_keys_name_file_and_key() {
-    let dir = std::env::temp_dir().join(format!("soundmap-cfg-keys-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
-    let path = dir.join("coordinator.toml");
+    let dir = tempfile::Builder::new().prefix("soundmap-cfg-keys-").tempdir().unwrap();
+    let path = dir.path().join("coordinator.toml");
     for (text, key) in [
         ("[planner]\nmax_range_m = -2.0\n", "planner.max_range_m"),
         ("[planner]\nrobot_speed_m_per_s = 0.0\n", "planner.robot_speed_m_per_s"),
@@ -107,5 +104,4 @@ fn bad_planner_and_tracking_keys_name_file_and_key() {
     assert!(!out.status.success());
     let stderr = String::from_utf8_lossy(&out.stderr);
     assert!(stderr.contains(&format!("{}: tracking.lag_s:", path.display())), "{stderr}");
-    std::fs::remove_dir_all(&dir).unwrap();
 }

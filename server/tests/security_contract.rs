@@ -140,9 +140,8 @@ fn values_that_would_overflow_are_config_errors_naming_the_key() {
 }
 
 fn check(config: &str) -> (bool, String) {
-    let dir = std::env::temp_dir().join(format!("soundmap-check-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
-    let file = dir.join(format!("c{}.toml", config.len()));
+    let dir = tempfile::Builder::new().prefix("soundmap-check-").tempdir().unwrap();
+    let file = dir.path().join(format!("c{}.toml", config.len()));
     std::fs::write(&file, config).unwrap();
     let out = Command::new(env!("CARGO_BIN_EXE_soundmap-coordinator"))
         .arg("--config")

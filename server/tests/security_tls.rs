@@ -25,24 +25,23 @@ use tonic::transport::{Certificate, Channel, ClientTlsConfig, Endpoint, Identity
 
 /// A CA and the PEM files it signed, in a temporary directory.
 struct Pki {
-    dir: PathBuf,
+    dir: tempfile::TempDir,
     ca: CertifiedIssuer<'static, KeyPair>,
 }
 
 impl Pki {
     fn new(name: &str) -> Pki {
-        let dir = std::env::temp_dir().join(format!("soundmap-tls-{name}-{}", std::process::id()));
-        std::fs::create_dir_all(&dir).unwrap();
+        let dir = tempfile::Builder::new().prefix(&format!("soundmap-tls-{name}-")).tempdir().unwrap();
         let mut params = CertificateParams::new(Vec::<String>::new()).unwrap();
         params.is_ca = IsCa::Ca(BasicConstraints::Unconstrained);
         params.distinguished_name.push(DnType::CommonName, "soundmap test fleet CA");
         let ca = CertifiedIssuer::self_signed(params, KeyPair::generate().unwrap()).unwrap();
-        std::fs::write(dir.join("ca.pem"), ca.pem()).unwrap();
+        std::fs::write(dir.path().join("ca.pem"), ca.pem()).unwrap();
         Pki { dir, ca }
     }
 
     fn path(&self, file: &str) -> PathBuf {
-        self.dir.join(file)
+        self.dir.path().join(file)
     }
 
     /// Writes `NAME.pem` and `NAME.key` for a certificate with these DNS names.
@@ -73,12 +72,6 @@ impl Pki {
             tls = tls.identity(Identity::from_pem(cert, key));
         }
         tls
-    }
-}
-
-impl Drop for Pki {
-    fn drop(&mut self) {
-        let _ = std::fs::remove_dir_all(&self.dir);
     }
 }
 

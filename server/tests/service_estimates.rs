@@ -22,10 +22,8 @@ fn bases() -> [Point3<f64>; 2] {
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn exact_doas_give_the_source_within_a_millimetre() {
-    let dir = std::env::temp_dir().join(format!("soundmap-e2e-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
-    let jsonl = dir.join("estimates.jsonl");
-    let _ = std::fs::remove_file(&jsonl);
+    let dir = tempfile::Builder::new().prefix("soundmap-e2e-").tempdir().unwrap();
+    let jsonl = dir.path().join("estimates.jsonl");
     let mut config = CoordinatorConfig::default();
     config.output.estimates_jsonl = Some(jsonl.clone());
     let (coordinator, clock) = start(config).await;
@@ -91,7 +89,6 @@ async fn exact_doas_give_the_source_within_a_millimetre() {
     }
     let smoothed = lines.iter().filter(|l| l.get("smoothed").is_some()).count();
     assert!((5..=10).contains(&smoothed), "{smoothed} lines with a smoothed state");
-    std::fs::remove_dir_all(&dir).unwrap();
 }
 
 /// σ = 3° per tangent axis on both robots at 3 m and θ = 90°: the published

@@ -72,13 +72,13 @@ fn bad_scenarios_name_the_file_and_key() {
 #[test]
 fn replay_settings_carry_the_scenarios_own_tables() {
     use soundmap_sim::runner::{write_replay_config, write_replay_pipeline};
-    let dir = std::env::temp_dir().join(format!("soundmap-sim-replay-settings-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
+    let tmp = tempfile::Builder::new().prefix("soundmap-sim-replay-settings-").tempdir().unwrap();
+    let dir = tmp.path();
 
     let plain = Scenario::load("smoke").unwrap();
-    assert!(write_replay_pipeline(&dir, &plain).unwrap().is_none(), "no [agent] table, no pipeline file");
+    assert!(write_replay_pipeline(dir, &plain).unwrap().is_none(), "no [agent] table, no pipeline file");
     let config =
-        soundmap_server::CoordinatorConfig::from_file(&write_replay_config(&dir, &plain).unwrap()).unwrap();
+        soundmap_server::CoordinatorConfig::from_file(&write_replay_config(dir, &plain).unwrap()).unwrap();
     assert_eq!(config.doa.ceiling_height_m, Some(plain.room.size_m[2]));
     assert_eq!(config.sources.max_sources, 1);
 
@@ -88,14 +88,12 @@ fn replay_settings_carry_the_scenarios_own_tables() {
     );
     let cocktail = Scenario::from_toml(&text, "cocktail.toml").unwrap();
     let config =
-        soundmap_server::CoordinatorConfig::from_file(&write_replay_config(&dir, &cocktail).unwrap())
-            .unwrap();
+        soundmap_server::CoordinatorConfig::from_file(&write_replay_config(dir, &cocktail).unwrap()).unwrap();
     assert_eq!(config.sources.max_sources, cocktail.coordinator.sources.max_sources);
     assert_eq!(config.sources.max_sources, 4);
     assert_eq!(config.doa.ceiling_height_m, Some(cocktail.room.size_m[2]));
-    let path = write_replay_pipeline(&dir, &cocktail).unwrap().expect("a pipeline file");
+    let path = write_replay_pipeline(dir, &cocktail).unwrap().expect("a pipeline file");
     let pipeline = soundmap_agent::config::load_pipeline(&path).unwrap();
     assert!(pipeline.tracker.shaped_measurement_noise);
     assert_eq!(pipeline.tracker.max_coast_s, 2.5);
-    let _ = std::fs::remove_dir_all(&dir);
 }

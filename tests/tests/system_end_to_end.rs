@@ -1,18 +1,14 @@
 //! The whole system end to end: simulated room and robots, the real agent
 //! pipeline and coordinator over gRPC on loopback.
 
-use std::path::PathBuf;
-
 use soundmap_sim::replay::{ReplayArgs, RobotRecording, TruthTrack, replay};
 use soundmap_sim::report::write_reports;
 use soundmap_sim::runner::{RunOptions, run};
 use soundmap_sim::scenario::Scenario;
 
-fn temp_dir(name: &str) -> PathBuf {
-    let d = std::env::temp_dir().join(format!("soundmap-sim-{name}-{}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&d);
-    std::fs::create_dir_all(&d).unwrap();
-    d
+/// A scratch directory for one test, removed when dropped.
+fn temp_dir(name: &str) -> tempfile::TempDir {
+    tempfile::Builder::new().prefix(&format!("soundmap-sim-{name}-")).tempdir().unwrap()
 }
 
 /// The smoke scenario localizes its source: every robot contributes, the
@@ -31,12 +27,11 @@ fn smoke_scenario_end_to_end() {
     println!("smoke: {} estimates, RSE median {median:.3} m, p95 {p95:.3} m", rse.len());
     assert!(median < 0.10 && p95 < 0.20, "median {median} p95 {p95}");
     let dir = temp_dir("smoke");
-    let summary = serde_json::to_value(write_reports(&record, &dir).unwrap()).unwrap();
+    let summary = serde_json::to_value(write_reports(&record, dir.path()).unwrap()).unwrap();
     assert_eq!(summary["estimates"].as_u64().unwrap() as usize, record.rows.len());
     for f in ["timeline.csv", "theta_bins.csv", "summary.json", "map.png", "theta_rse.svg"] {
-        assert!(dir.join(f).metadata().unwrap().len() > 0, "{f}");
+        assert!(dir.path().join(f).metadata().unwrap().len() > 0, "{f}");
     }
-    std::fs::remove_dir_all(&dir).unwrap();
 }
 
 /// A source 0.19 m above two robots' arrays at one height: the arrays hear
@@ -78,26 +73,24 @@ fn runs_are_deterministic() {
     let b = run(&scenario, &options).unwrap();
     assert_eq!(a.rows, b.rows);
     let (da, db) = (temp_dir("det-a"), temp_dir("det-b"));
-    write_reports(&a, &da).unwrap();
-    write_reports(&b, &db).unwrap();
-    let sa = std::fs::read_to_string(da.join("summary.json")).unwrap();
-    let sb = std::fs::read_to_string(db.join("summary.json")).unwrap();
+    write_reports(&a, da.path()).unwrap();
+    write_reports(&b, db.path()).unwrap();
+    let sa = std::fs::read_to_string(da.path().join("summary.json")).unwrap();
+    let sb = std::fs::read_to_string(db.path().join("summary.json")).unwrap();
     assert_eq!(sa, sb);
     let c = run(&scenario, &RunOptions { seed: Some(43), ..RunOptions::default() }).unwrap();
     assert_ne!(a.rows, c.rows);
-    for d in [da, db] {
-        std::fs::remove_dir_all(d).unwrap();
-    }
 }
 
 /// A run recorded by the simulator (WAV + TUM) and replayed gives the same estimates.
 #[test]
 fn replay_of_a_recording_gives_the_same_estimates() {
     let scenario = Scenario::load("smoke").unwrap();
-    let dir = temp_dir("record");
+    let tmp = temp_dir("record");
+    let dir = tmp.path();
     let direct =
-        run(&scenario, &RunOptions { record_dir: Some(dir.clone()), ..RunOptions::default() }).unwrap();
-    let robots = RobotRecording::recorded(&dir, &scenario);
+        run(&scenario, &RunOptions { record_dir: Some(dir.to_path_buf()), ..RunOptions::default() }).unwrap();
+    let robots = RobotRecording::recorded(dir, &scenario);
     let args = ReplayArgs {
         robots,
         truths: vec![TruthTrack::always(dir.join("source.tum"))],
@@ -123,5 +116,4 @@ fn replay_of_a_recording_gives_the_same_estimates() {
     assert!(worst < 1e-6, "largest difference {worst} m");
     let command = std::fs::read_to_string(dir.join("replay-command.txt")).unwrap();
     assert!(command.contains("--robot id=pioneer") && command.contains("--coordinator-config"), "{command}");
-    std::fs::remove_dir_all(&dir).unwrap();
 }

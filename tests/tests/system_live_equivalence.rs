@@ -9,7 +9,7 @@
 //! must hold the same observations per robot: same sequence numbers, stamps,
 //! poses, DoAs and silences.
 
-use std::path::{Path, PathBuf};
+use std::path::Path;
 use std::sync::Arc;
 
 use soundmap_sim::live_check::{LoggingCoordinator, observations_by_robot, replay_logging, run_agents};
@@ -17,11 +17,9 @@ use soundmap_sim::replay::parse_robot;
 use soundmap_sim::runner::{RunOptions, SIM_EPOCH, run};
 use soundmap_sim::scenario::Scenario;
 
-fn scratch(name: &str) -> PathBuf {
-    let dir = std::env::temp_dir().join(format!("soundmap-{name}-{}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&dir);
-    std::fs::create_dir_all(&dir).unwrap();
-    dir
+/// A scratch directory for one test, removed when dropped.
+fn scratch(name: &str) -> tempfile::TempDir {
+    tempfile::Builder::new().prefix(&format!("soundmap-{name}-")).tempdir().unwrap()
 }
 
 fn agent_toml(id: &str, endpoint: &str, dir: &Path, array: &str) -> String {
@@ -69,7 +67,8 @@ fn live_agent_and_replay_send_the_same_observations() {
     let mut scenario = Scenario::load("smoke").unwrap();
     // The source pauses: the stream holds the end of a track and a silence.
     scenario.sources[0].active = vec![[0.0, 1.8], [2.6, 4.0]];
-    let dir = scratch("live-equivalence");
+    let tmp = scratch("live-equivalence");
+    let dir = tmp.path();
     let rec = dir.join("recording");
     run(&scenario, &RunOptions { record_dir: Some(rec.clone()), ..RunOptions::default() }).unwrap();
 
@@ -88,7 +87,7 @@ fn live_agent_and_replay_send_the_same_observations() {
                 .unwrap()
             })
             .collect(),
-        &dir,
+        dir,
     );
 
     // (1) the live agents against a real coordinator on a wall clock (one that
@@ -130,5 +129,4 @@ fn live_agent_and_replay_send_the_same_observations() {
             assert_eq!(a, b, "{id}: first difference");
         }
     }
-    let _ = std::fs::remove_dir_all(&dir);
 }

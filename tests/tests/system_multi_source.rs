@@ -17,17 +17,14 @@
 //! cargo test -p soundmap-sim --test system_multi_source -- --ignored --nocapture   # seeds 1–5
 //! ```
 
-use std::path::PathBuf;
-
 use soundmap_sim::replay::{ReplayArgs, RobotRecording, parse_truth, replay};
 use soundmap_sim::report::{MultiTargetSummary, Summary, write_reports};
 use soundmap_sim::runner::{RunOptions, run};
 use soundmap_sim::scenario::Scenario;
 
-fn temp_dir(name: &str) -> PathBuf {
-    let d = std::env::temp_dir().join(format!("soundmap-sim-multi-{name}-{}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&d);
-    d
+/// A scratch directory for one test, removed when dropped.
+fn temp_dir(name: &str) -> tempfile::TempDir {
+    tempfile::Builder::new().prefix(&format!("soundmap-sim-multi-{name}-")).tempdir().unwrap()
 }
 
 fn fmt(v: Option<f64>) -> String {
@@ -102,9 +99,9 @@ fn run_and_check(name: &str, seed: Option<u64>, need_estimates: bool) -> Summary
         println!("{name}: {goals} goals, {} within 1 m of a playing source {near:?}", near.len());
     }
     let dir = temp_dir(name);
-    let summary = write_reports(&record, &dir).unwrap();
+    let summary = write_reports(&record, dir.path()).unwrap();
     let json: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(dir.join("summary.json")).unwrap()).unwrap();
+        serde_json::from_str(&std::fs::read_to_string(dir.path().join("summary.json")).unwrap()).unwrap();
     let m: &MultiTargetSummary = summary.multi_target.as_ref().expect("multi_target present");
     assert!(json["multi_target"].is_object());
     assert_eq!(m.true_sources, scenario.sources.len());
@@ -121,9 +118,8 @@ fn run_and_check(name: &str, seed: Option<u64>, need_estimates: bool) -> Summary
     assert_eq!(m.id_switches, m.sources.iter().map(|s| s.id_switches).sum::<usize>());
     let scored: usize = m.sources.iter().map(|s| s.estimates).sum();
     assert_eq!(scored, record.rows.len(), "each row is scored against exactly one source");
-    let header = std::fs::read_to_string(dir.join("timeline.csv")).unwrap();
+    let header = std::fs::read_to_string(dir.path().join("timeline.csv")).unwrap();
     assert!(header.lines().next().unwrap().contains(",source_id,truth_source,smooth_t_s,"));
-    let _ = std::fs::remove_dir_all(&dir);
     summary
 }
 
@@ -173,9 +169,10 @@ fn cocktail_is_rendered_heard_and_scored() {
 #[test]
 fn replay_with_several_truths_scores_like_the_run() {
     let scenario = Scenario::load("two-talkers").unwrap();
-    let dir = temp_dir("record");
+    let tmp = temp_dir("record");
+    let dir = tmp.path();
     let direct =
-        run(&scenario, &RunOptions { record_dir: Some(dir.clone()), ..RunOptions::default() }).unwrap();
+        run(&scenario, &RunOptions { record_dir: Some(dir.to_path_buf()), ..RunOptions::default() }).unwrap();
     let command = std::fs::read_to_string(dir.join("replay-command.txt")).unwrap();
     let words: Vec<&str> = command.split_whitespace().collect();
     let truths: Vec<_> =
@@ -183,7 +180,7 @@ fn replay_with_several_truths_scores_like_the_run() {
     assert_eq!(truths.len(), 2, "{command}");
     assert!(truths[1].path.ends_with("source-1.tum"));
     assert_eq!(truths[1].active, vec![(8.0, 30.0)]);
-    let robots = RobotRecording::recorded(&dir, &scenario);
+    let robots = RobotRecording::recorded(dir, &scenario);
     let args = ReplayArgs {
         robots,
         truths,
@@ -219,7 +216,6 @@ fn replay_with_several_truths_scores_like_the_run() {
     }
     let summary = write_reports(&replayed, &dir.join("replay")).unwrap();
     assert_eq!(summary.multi_target.map(|m| m.true_sources), Some(2));
-    let _ = std::fs::remove_dir_all(&dir);
 }
 
 /// Seeds 1–5 of every multi-source scenario, one table each (for the report

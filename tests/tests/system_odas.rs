@@ -144,11 +144,10 @@ fn run(seed: u64) -> Figures {
 
 fn run_with(seed: u64, coordinator_toml: Option<&str>, walk_m_per_s: f64) -> Figures {
     // One directory per run: the sweeps may run in parallel.
-    static RUNS: std::sync::atomic::AtomicU32 = std::sync::atomic::AtomicU32::new(0);
-    let run = RUNS.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
-    let dir = std::env::temp_dir().join(format!("soundmap-odas-{}-{run}-{seed}", std::process::id()));
+    let tmp = tempfile::Builder::new().prefix(&format!("soundmap-odas-{seed}-")).tempdir().unwrap();
+    let dir = tmp.path();
     let spec = OdasTrialSpec { seed, walk_m_per_s, ..OdasTrialSpec::default() };
-    let trial = write_trial(&dir, &spec).unwrap();
+    let trial = write_trial(dir, &spec).unwrap();
     // Through the command line's own parser, as a user would give it.
     let robots = trial.robots.iter().map(|r| parse_robot(&r.to_argument()).unwrap()).collect();
     let coordinator_config = coordinator_toml.map(|toml| {
@@ -170,9 +169,7 @@ fn run_with(seed: u64, coordinator_toml: Option<&str>, walk_m_per_s: f64) -> Fig
     let record = replay(&args).unwrap();
     let f = figures(&record, &trial, t0.elapsed().as_secs_f64());
     if std::env::var_os("SOUNDMAP_KEEP_RUNS").is_some() {
-        println!("kept {}", dir.display());
-    } else {
-        let _ = std::fs::remove_dir_all(&dir);
+        println!("kept {}", tmp.keep().display());
     }
     println!(
         "seed {seed}: in-band p95 soundmap {:.3} m vs closest point {:.3} m ({:+.0} %), smoothed {:.3} m ({:+.0} %, \

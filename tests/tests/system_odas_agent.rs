@@ -11,7 +11,6 @@
 //! `cargo test -p soundmap-sim --test system_odas_agent -- --nocapture`
 //! prints how long the live agents took for the 60 s files.
 
-use std::path::PathBuf;
 use std::sync::Arc;
 use std::time::Instant;
 
@@ -20,21 +19,20 @@ use soundmap_sim::live_check::{LoggingCoordinator, observations_by_robot, replay
 use soundmap_sim::odas_like::trial::{OdasTrialSpec, write_trial};
 use soundmap_sim::replay::parse_robot;
 
-fn scratch(name: &str) -> PathBuf {
-    let dir = std::env::temp_dir().join(format!("soundmap-{name}-{}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&dir);
-    std::fs::create_dir_all(&dir).unwrap();
-    dir
+/// A scratch directory for one test, removed when dropped.
+fn scratch(name: &str) -> tempfile::TempDir {
+    tempfile::Builder::new().prefix(&format!("soundmap-{name}-")).tempdir().unwrap()
 }
 
 #[test]
 fn live_agents_send_odas_files_asap_as_the_replay_does() {
-    let dir = scratch("odas-agent");
-    let trial = write_trial(&dir, &OdasTrialSpec { seed: 3, ..OdasTrialSpec::default() }).unwrap();
+    let tmp = scratch("odas-agent");
+    let dir = tmp.path();
+    let trial = write_trial(dir, &OdasTrialSpec { seed: 3, ..OdasTrialSpec::default() }).unwrap();
 
     // (1) soundmap-sim replay of the SST files.
     let replay_log =
-        replay_logging(trial.robots.iter().map(|r| parse_robot(&r.to_argument()).unwrap()).collect(), &dir);
+        replay_logging(trial.robots.iter().map(|r| parse_robot(&r.to_argument()).unwrap()).collect(), dir);
 
     // (2) the live agents, asap, against a coordinator on the system clock.
     // 7,500 observations per robot in well under a second (the coordinator's
@@ -95,5 +93,4 @@ fn live_agents_send_odas_files_asap_as_the_replay_does() {
         assert!(end <= soundmap_proto::Stamp::now().as_ns(), "{id}: the last stamp is ahead of the clock");
     }
     println!("two live agents sent the 60 s ODAS files (asap) in {live_s:.2} s");
-    let _ = std::fs::remove_dir_all(&dir);
 }

@@ -14,11 +14,9 @@ use soundmap_sim::runner::{RunOptions, run};
 use soundmap_sim::scenario::Scenario;
 use soundmap_sim::viewer::ViewArgs;
 
-fn temp_dir(name: &str) -> PathBuf {
-    let d = std::env::temp_dir().join(format!("soundmap-foxglove-{name}-{}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&d);
-    std::fs::create_dir_all(&d).unwrap();
-    d
+/// A scratch directory for one test, removed when dropped.
+fn temp_dir(name: &str) -> tempfile::TempDir {
+    tempfile::Builder::new().prefix(&format!("soundmap-foxglove-{name}-")).tempdir().unwrap()
 }
 
 fn free_port() -> SocketAddr {
@@ -32,7 +30,8 @@ fn topic<'a>(v: &'a Value, t: &str) -> &'a Value {
 #[test]
 fn live_view_and_recording_change_nothing_and_replay_mcap_reproduces_the_run() {
     let scenario = Scenario::load("smoke").unwrap();
-    let dir = temp_dir("run");
+    let tmp = temp_dir("run");
+    let dir = tmp.path();
     let seed = Some(11);
     let plain = run(&scenario, &RunOptions { seed, ..RunOptions::default() }).unwrap();
 
@@ -186,12 +185,12 @@ fn live_view_and_recording_change_nothing_and_replay_mcap_reproduces_the_run() {
     std::fs::write(&cut, &bytes[..200]).unwrap();
     let e = replay_mcap(&ReplayMcapArgs { file: cut, ..args }).unwrap_err().to_string();
     assert!(e.contains("cut.mcap") && e.contains("cut short") && e.contains("hello"), "{e}");
-    std::fs::remove_dir_all(&dir).unwrap();
 }
 
 #[test]
 fn replay_mcap_refuses_what_is_not_a_soundmap_recording() {
-    let dir = temp_dir("bad");
+    let tmp = temp_dir("bad");
+    let dir = tmp.path();
     let junk = dir.join("junk.mcap");
     std::fs::write(&junk, b"not an mcap file at all").unwrap();
     let args = |file: PathBuf| ReplayMcapArgs {
@@ -204,7 +203,6 @@ fn replay_mcap_refuses_what_is_not_a_soundmap_recording() {
     assert!(e.contains("junk.mcap") && e.contains("MCAP"), "{e}");
     let e = replay_mcap(&args(dir.join("missing.mcap"))).unwrap_err().to_string();
     assert!(e.contains("missing.mcap"), "{e}");
-    std::fs::remove_dir_all(&dir).unwrap();
 }
 
 /// A recorded run with active positioning on writes it into the settings to
@@ -216,7 +214,8 @@ fn replay_mcap_refuses_what_is_not_a_soundmap_recording() {
 fn replay_mcap_of_an_active_run_plans_as_the_run_did() {
     let mut scenario = Scenario::load("corner-start").unwrap();
     scenario.duration_s = 2.0;
-    let dir = temp_dir("active");
+    let tmp = temp_dir("active");
+    let dir = tmp.path();
     let mcap = dir.join("run.mcap");
     let view = ViewArgs { mcap: Some(mcap.clone()), ..ViewArgs::default() };
     let live = run(&scenario, &RunOptions { seed: Some(5), view, ..RunOptions::default() }).unwrap();
@@ -249,5 +248,4 @@ fn replay_mcap_of_an_active_run_plans_as_the_run_did() {
     assert!(line.starts_with(&format!("{:.3},{},{:.3},{:.3},", b.0, b.1, b.2, b.3)), "{line}");
     let range: f64 = line.rsplit(',').next().unwrap().parse().unwrap();
     assert!(range > 1.0 && range < 12.0, "{line}");
-    std::fs::remove_dir_all(&dir).unwrap();
 }

@@ -9,7 +9,6 @@ mod common;
 
 use std::collections::BTreeMap;
 use std::net::SocketAddr;
-use std::path::PathBuf;
 
 use common::fleet::Fleet;
 use nalgebra::Point3;
@@ -19,11 +18,9 @@ use soundmap_proto::wire::robot_message::Msg as Up;
 use soundmap_server::CoordinatorConfig;
 use soundmap_sim::pytools;
 
-fn temp_dir(name: &str) -> PathBuf {
-    let d = std::env::temp_dir().join(format!("soundmap-toolbox-{name}-{}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&d);
-    std::fs::create_dir_all(&d).unwrap();
-    d
+/// A scratch directory for one test, removed when dropped.
+fn temp_dir(name: &str) -> tempfile::TempDir {
+    tempfile::Builder::new().prefix(&format!("soundmap-toolbox-{name}-")).tempdir().unwrap()
 }
 
 /// Runs a Python script off the async runtime and parses its last stdout line as JSON.
@@ -84,10 +81,11 @@ async fn reflection_python_client_and_metrics_against_a_live_coordinator() {
     assert!(r["robot_state_fields"].as_array().unwrap().iter().any(|f| f == "liveness"), "{r}");
 
     // The Python client watches while two robots observe a source at (2, 3, 1).
-    let stubs = temp_dir("stubs");
+    let tmp = temp_dir("stubs");
+    let stubs = tmp.path();
     let watch = tokio::spawn(python_json(
         "examples/python/soundmap_client.py",
-        client_args(addr, &stubs, &["watch", "--count", "5"]),
+        client_args(addr, stubs, &["watch", "--count", "5"]),
     ));
     tokio::time::sleep(std::time::Duration::from_millis(300)).await;
     let source = Point3::new(2.0, 3.0, 1.0);
@@ -110,7 +108,7 @@ async fn reflection_python_client_and_metrics_against_a_live_coordinator() {
     let p = Point3::new(p[0].as_f64().unwrap(), p[1].as_f64().unwrap(), p[2].as_f64().unwrap());
     assert!((p - source).norm() < 0.05, "watched estimate {p} vs source {source}");
 
-    let map = python_json("examples/python/soundmap_client.py", client_args(addr, &stubs, &["map"])).await;
+    let map = python_json("examples/python/soundmap_client.py", client_args(addr, stubs, &["map"])).await;
     let robots: Vec<&str> =
         map["robots"].as_array().unwrap().iter().map(|r| r["robot_id"].as_str().unwrap()).collect();
     assert_eq!(robots, ["r1", "r2"], "{map}");
@@ -119,7 +117,7 @@ async fn reflection_python_client_and_metrics_against_a_live_coordinator() {
 
     let switched = python_json(
         "examples/python/soundmap_client.py",
-        client_args(addr, &stubs, &["positioning", "--enable", "--theta-min", "30", "--theta-max", "150"]),
+        client_args(addr, stubs, &["positioning", "--enable", "--theta-min", "30", "--theta-max", "150"]),
     )
     .await;
     assert_eq!(switched["enabled"], true, "{switched}");

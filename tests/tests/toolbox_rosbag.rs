@@ -11,11 +11,9 @@ use soundmap_sim::runner::{RunOptions, SIM_EPOCH, run};
 use soundmap_sim::scenario::Scenario;
 use soundmap_sim::viewer::ViewArgs;
 
-fn temp_dir(name: &str) -> PathBuf {
-    let d = std::env::temp_dir().join(format!("soundmap-rosbag-{name}-{}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&d);
-    std::fs::create_dir_all(&d).unwrap();
-    d
+/// A scratch directory for one test, removed when dropped.
+fn temp_dir(name: &str) -> tempfile::TempDir {
+    tempfile::Builder::new().prefix(&format!("soundmap-rosbag-{name}-")).tempdir().unwrap()
 }
 
 fn args(
@@ -80,14 +78,15 @@ fn bag_robots(recorded: &[RobotRecording], base_frame: Option<&str>) -> Vec<Robo
 #[test]
 fn a_bag_replays_like_the_recording_it_was_made_from() {
     let scenario = Scenario::load("smoke").unwrap();
-    let dir = temp_dir("same");
-    run(&scenario, &RunOptions { record_dir: Some(dir.clone()), ..RunOptions::default() }).unwrap();
-    let recorded = RobotRecording::recorded(&dir, &scenario);
+    let tmp = temp_dir("same");
+    let dir = tmp.path();
+    run(&scenario, &RunOptions { record_dir: Some(dir.to_path_buf()), ..RunOptions::default() }).unwrap();
+    let recorded = RobotRecording::recorded(dir, &scenario);
     let truth = vec![TruthTrack::always(dir.join("source.tum"))];
     let direct = replay(&args(recorded.clone(), truth, dir.join("direct"), None)).unwrap();
 
     let bag = dir.join("bag");
-    write_bag(&recorded, &dir, &bag, "F32LE", "normal");
+    write_bag(&recorded, dir, &bag, "F32LE", "normal");
     let truth_unix = vec![TruthTrack::always(dir.join("truth-unix.tum"))];
     let from_bag =
         replay(&args(bag_robots(&recorded, None), truth_unix, dir.join("from-bag"), Some(&bag))).unwrap();
@@ -140,7 +139,7 @@ fn a_bag_replays_like_the_recording_it_was_made_from() {
 
     // 16-bit audio: the same run within the quantization's effect.
     let bag16 = dir.join("bag16");
-    write_bag(&recorded, &dir, &bag16, "S16LE", "normal");
+    write_bag(&recorded, dir, &bag16, "S16LE", "normal");
     let s16 = replay(&args(bag_robots(&recorded, None), vec![], dir.join("s16"), Some(&bag16))).unwrap();
     let n = s16.rows.len().min(direct.rows.len());
     assert!(n * 10 >= direct.rows.len() * 9, "{} vs {}", s16.rows.len(), direct.rows.len());
@@ -166,16 +165,15 @@ fn a_bag_replays_like_the_recording_it_was_made_from() {
     assert!(e.contains("broken tf chain from map to base_footprint"), "{e}");
 
     let gap = dir.join("bag-gap");
-    write_bag(&recorded, &dir, &gap, "S16LE", "gap");
+    write_bag(&recorded, dir, &gap, "S16LE", "gap");
     let e = fails(bag_robots(&recorded, None), &gap);
     assert!(e.contains("a gap of 64.0 ms in the audio"), "{e}");
 
     let other = dir.join("bag-other");
-    write_bag(&recorded, &dir, &other, "F32LE", "bad-definition");
+    write_bag(&recorded, dir, &other, "F32LE", "bad-definition");
     let e = fails(bag_robots(&recorded, None), &other);
     assert!(e.contains("unknown message definition of audio_common_msgs/AudioDataStamped"), "{e}");
     let e =
         replay(&args(bag_robots(&recorded, None), vec![], dir.join("fail"), None)).unwrap_err().to_string();
     assert!(e.contains("give --rosbag BAG"), "{e}");
-    std::fs::remove_dir_all(&dir).unwrap();
 }

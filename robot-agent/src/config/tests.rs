@@ -205,16 +205,14 @@ fn type_and_unknown_key_errors_name_the_dotted_path() {
 
 #[test]
 fn pipeline_files_name_their_keys() {
-    let dir = std::env::temp_dir().join(format!("soundmap-agent-pipeline-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
-    let file = dir.join("pipeline.toml");
+    let dir = tempfile::Builder::new().prefix("soundmap-agent-pipeline-").tempdir().unwrap();
+    let file = dir.path().join("pipeline.toml");
     std::fs::write(&file, "hop_len = 128\n[srp]\nspeed_of_sound_m_per_s = \"fast\"\n").unwrap();
     let e = load_pipeline(&file).unwrap_err().to_string();
     assert!(e.starts_with(&format!("{}: srp.speed_of_sound_m_per_s: invalid type", file.display())), "{e}");
     // The old spelling of the unit is still accepted.
     std::fs::write(&file, "[srp]\nspeed_of_sound_m_s = 340.0\n").unwrap();
     assert_eq!(load_pipeline(&file).unwrap().srp.speed_of_sound_m_per_s, 340.0);
-    std::fs::remove_dir_all(&dir).ok();
 }
 
 /// The example with ODAS instead of `[audio]`: `doa` lines after `source = "odas"`, the pose file kept.

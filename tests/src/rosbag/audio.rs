@@ -199,8 +199,8 @@ mod tests {
 
     #[test]
     fn a_gap_in_the_audio_is_an_error() {
-        let dir = std::env::temp_dir().join(format!("soundmap-audio-gap-{}", std::process::id()));
-        std::fs::create_dir_all(&dir).unwrap();
+        let tmp = tempfile::Builder::new().prefix("soundmap-audio-gap-").tempdir().unwrap();
+        let dir = tmp.path();
         let info = AudioInfo {
             channels: 2,
             sample_rate: 1000,
