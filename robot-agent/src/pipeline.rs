@@ -278,6 +278,7 @@ impl Pipeline {
         let hop_s = config.hop_len as f64 / fs as f64;
         let mut tracker = DoaTracker::new(&config.tracker, hop_s, config.srp.max_sources, srp.noise_model())?;
         tracker.set_microphones(&array.positions().map(|p| p.coords).collect::<Vec<_>>());
+        tracker.set_search_region(srp.region());
         let signatures = Signatures::new(array, &config.signature, &config.signature_layout())?;
         let (k, bands) = (signatures.max_tracks(), signatures.bands());
         let offset_samples = config.hop_len as f64 - config.frame_len as f64 / 2.0;

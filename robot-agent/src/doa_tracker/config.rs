@@ -102,6 +102,14 @@ pub struct TrackerConfig {
     /// Largest ratio of the worst- to the best-measured axis's σ in the
     /// shaped measurement noise.
     pub max_shape_ratio: f64,
+    /// A peak on the edge of the search region (the search stopped there:
+    /// the response still rose beyond it) measures only where along the
+    /// edge it lies, for the upper hemisphere its azimuth: gates, updates
+    /// and births take its angle from the edge from the track or candidate
+    /// it is compared with. See the module docs, "Peaks on the region's edge".
+    /// Experimental, off: it helps one source heard by moving robots
+    /// (`corner-start`) and makes ghosts in `cocktail`'s own seed.
+    pub edge_peaks_along_edge_only: bool,
 }
 
 impl Default for TrackerConfig {
@@ -136,6 +144,7 @@ impl Default for TrackerConfig {
             max_tracks: 8,
             shaped_measurement_noise: false,
             max_shape_ratio: 6.0,
+            edge_peaks_along_edge_only: false,
         }
     }
 }
