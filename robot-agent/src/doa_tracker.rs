@@ -716,9 +716,8 @@ impl DoaTracker {
             }
             let shape = self.shape.as_ref();
             // Too close to an existing track: it is that track's (ungated) echo, not a new source.
-            if self.tracks.iter().any(|t| {
-                Shape::angle(shape, &t.kf.d, &self.measured(z, &t.kf.d)) < cfg.merge_deg.to_radians()
-            }) {
+            // (On the plain direction, edge peaks too.)
+            if self.tracks.iter().any(|t| Shape::angle(shape, &t.kf.d, &z) < cfg.merge_deg.to_radians()) {
                 continue;
             }
             let near = self
