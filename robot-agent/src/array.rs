@@ -112,11 +112,16 @@ impl SearchRegion {
         if self.contains(&d, 0.0) {
             return d;
         }
+        self.at_angle_from_axis(&d, self.max_angle_rad).map_or(self.axis, Unit::new_normalize)
+    }
+
+    /// The direction at `d`'s place around the axis and `angle_rad` from it
+    /// (unit up to rounding); `None` when `d` lies along the axis.
+    pub fn at_angle_from_axis(&self, d: &Vector3<f64>, angle_rad: f64) -> Option<Vector3<f64>> {
         let a = self.axis.into_inner();
-        let perp = d.into_inner() - a * a.dot(&d);
-        let Some(perp) = Unit::try_new(perp, 1e-12) else { return self.axis };
-        let (s, c) = self.max_angle_rad.sin_cos();
-        Unit::new_normalize(a * c + perp.into_inner() * s)
+        let perp = Unit::try_new(d - a * a.dot(d), 1e-12)?;
+        let (s, c) = angle_rad.sin_cos();
+        Some(a * c + perp.into_inner() * s)
     }
 }
 

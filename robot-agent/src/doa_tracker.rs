@@ -218,9 +218,9 @@ pub use crate::srp::diffuse::NoiseModel;
 pub use config::TrackerConfig;
 use sphere_kf::SphereKf;
 
-/// A potential whose cosine to the search region's axis is within this of
-/// the edge's lies on the edge (the search clamps peaks exactly onto it).
-const EDGE_TOLERANCE: f64 = 1e-9;
+/// A potential within this angle of the search region's edge lies on it
+/// (the search clamps peaks exactly onto it), radians.
+const EDGE_MARGIN_RAD: f64 = 1e-9;
 
 /// Weight of each new hit in a track's average coherence (about the last
 /// 20 hits, 0.16 s of a source heard every hop).
@@ -491,13 +491,11 @@ impl DoaTracker {
     /// (module docs, "Peaks on the region's edge").
     fn measured(&self, z: Vector3<f64>, reference: &Vector3<f64>) -> Vector3<f64> {
         let Some(region) = &self.edge else { return z };
-        let axis = region.axis.into_inner();
-        if axis.dot(&z) > region.max_angle_rad.cos() + EDGE_TOLERANCE {
+        if region.contains(&z, -EDGE_MARGIN_RAD) {
             return z;
         }
-        let Some(around) = Unit::try_new(z - axis * axis.dot(&z), 1e-9) else { return z };
-        let from_axis = axis.dot(reference).clamp(-1.0, 1.0).acos();
-        axis * from_axis.cos() + around.into_inner() * from_axis.sin()
+        let from_axis = region.axis.dot(reference).clamp(-1.0, 1.0).acos();
+        region.at_angle_from_axis(&z, from_axis).unwrap_or(z)
     }
 
     /// Tells the tracker where the microphones are (array frame, m), for
